@@ -1,0 +1,22 @@
+//! Plottable metric messages (protobuf via `foxglove::Encode`).
+
+/// `/dem/metrics`, one per recorded frame.
+#[derive(Debug, Clone, Copy, Default, foxglove::Encode)]
+pub struct DemMetrics {
+    /// Simulated time since the gate opened, s.
+    pub t: f64,
+    /// t / t_ref.
+    pub t_norm: f64,
+    /// Solid front X_f, m.
+    pub front_x: f64,
+    /// (X_f − L0)/L0.
+    pub front_norm: f64,
+    /// Translational + rotational kinetic energy, J.
+    pub kinetic_energy: f64,
+    /// Largest grain speed, m/s.
+    pub max_speed: f64,
+    /// Mean grain–grain contacts per grain.
+    pub mean_coordination: f64,
+    /// Throughput since the last frame.
+    pub particle_steps_per_s: f64,
+}

@@ -1,0 +1,210 @@
+//! MCAP recording off the solver thread.
+//!
+//! A [`RecorderBuilder`] registers every channel up front (schema, topic,
+//! message encoding, channel metadata); [`RecorderBuilder::start`] moves the
+//! `mcap::Writer` onto its own thread. The solver hands over encoded message
+//! bytes through a bounded queue and never waits on compression or the disk,
+//! unless it outruns the disk by more than the queue depth (then it waits:
+//! back-pressure rather than unbounded memory).
+//!
+//! Chunks are zstd-compressed; every chunk is a complete record, so a run
+//! killed mid-way leaves a file a streaming MCAP reader still reads up to the
+//! last flushed chunk.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
+use std::thread::JoinHandle;
+
+use foxglove::Encode;
+
+/// Identifies a registered channel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ChannelId(u16);
+
+/// Topic names, in one place for every process and for the docs.
+pub mod topics {
+    pub const DEM_PARTICLES: &str = "/dem/particles";
+    pub const DEM_SPHERES: &str = "/dem/spheres";
+    pub const DEM_METRICS: &str = "/dem/metrics";
+    pub const DEM_STATE: &str = "/dem/state";
+    pub const SCENE_GEOMETRY: &str = "/scene/geometry";
+    pub const LOG: &str = "/log";
+}
+
+/// Metadata record names.
+pub mod metadata {
+    /// The scene as run (TOML after overrides), key `toml`.
+    pub const SCENE: &str = "scene";
+    /// The run summary, key `json`.
+    pub const SUMMARY: &str = "summary";
+}
+
+enum Command {
+    Message { channel: u16, log_time: u64, data: Vec<u8> },
+    Metadata { name: String, entries: BTreeMap<String, String> },
+}
+
+pub struct RecorderBuilder {
+    writer: mcap::Writer<BufWriter<File>>,
+    path: PathBuf,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    #[error("cannot create recording {path}: {source}")]
+    Create { path: PathBuf, source: std::io::Error },
+    #[error("writing recording {path} failed: {source} (is the disk full? free space or choose another --out)")]
+    Write { path: PathBuf, source: mcap::McapError },
+    #[error("the recorder thread stopped early: {0}")]
+    Stopped(String),
+}
+
+impl RecorderBuilder {
+    /// Creates the file. Chunks of `chunk_bytes` are zstd-compressed on the recorder thread.
+    pub fn create(path: &Path, chunk_bytes: u64) -> Result<Self, RecordError> {
+        let file = File::create(path).map_err(|source| RecordError::Create { path: path.into(), source })?;
+        let writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_level(1)
+            .chunk_size(Some(chunk_bytes))
+            .profile("")
+            .library(concat!("saturated-granular ", env!("CARGO_PKG_VERSION")))
+            .create(BufWriter::with_capacity(1 << 20, file))
+            .map_err(|source| RecordError::Write { path: path.into(), source })?;
+        Ok(Self { writer, path: path.into() })
+    }
+
+    fn err(&self, source: mcap::McapError) -> RecordError {
+        RecordError::Write { path: self.path.clone(), source }
+    }
+
+    /// A channel carrying a Foxglove well-known schema (or any `foxglove::Encode` type).
+    pub fn channel<T: Encode>(&mut self, topic: &str) -> Result<ChannelId, RecordError> {
+        let schema = T::get_schema().expect("recorded types carry a schema");
+        let sid = self.writer.add_schema(&schema.name, &schema.encoding, &schema.data).map_err(|e| self.err(e))?;
+        let cid = self
+            .writer
+            .add_channel(sid, topic, &T::get_message_encoding(), &BTreeMap::new())
+            .map_err(|e| self.err(e))?;
+        Ok(ChannelId(cid))
+    }
+
+    /// A channel with a custom encoding and no schema record; describe the
+    /// encoding in `metadata` so other readers can decode it.
+    pub fn raw_channel(&mut self, topic: &str, message_encoding: &str, metadata: BTreeMap<String, String>) -> Result<ChannelId, RecordError> {
+        let cid = self.writer.add_channel(0, topic, message_encoding, &metadata).map_err(|e| self.err(e))?;
+        Ok(ChannelId(cid))
+    }
+
+    /// Moves the writer to its own thread. `queue` frames may wait in memory.
+    pub fn start(self, queue: usize) -> Recorder {
+        let (tx, rx) = sync_channel(queue);
+        let path = self.path.clone();
+        let writer = self.writer;
+        let handle = std::thread::Builder::new()
+            .name("recorder".into())
+            .spawn(move || writer_loop(writer, rx, path))
+            .expect("spawn recorder thread");
+        Recorder { tx: Some(tx), handle: Some(handle), sequence: 0 }
+    }
+}
+
+fn writer_loop(mut writer: mcap::Writer<BufWriter<File>>, rx: Receiver<Command>, path: PathBuf) -> Result<u64, RecordError> {
+    let mut bytes = 0_u64;
+    let werr = |source| RecordError::Write { path: path.clone(), source };
+    let mut sequence = 0_u32;
+    for cmd in rx {
+        match cmd {
+            Command::Message { channel, log_time, data } => {
+                sequence = sequence.wrapping_add(1);
+                bytes += data.len() as u64;
+                writer
+                    .write_to_known_channel(
+                        &mcap::records::MessageHeader { channel_id: channel, sequence, log_time, publish_time: log_time },
+                        &data,
+                    )
+                    .map_err(werr)?;
+            }
+            Command::Metadata { name, entries } => {
+                writer.write_metadata(&mcap::records::Metadata { name, metadata: entries }).map_err(werr)?;
+            }
+        }
+    }
+    writer.finish().map_err(werr)?;
+    Ok(bytes)
+}
+
+/// Handle the solver logs through; cheap to call, never blocks on I/O unless
+/// the queue is full.
+pub struct Recorder {
+    tx: Option<SyncSender<Command>>,
+    handle: Option<JoinHandle<Result<u64, RecordError>>>,
+    sequence: u64,
+}
+
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorder").field("messages", &self.sequence).finish()
+    }
+}
+
+impl Recorder {
+    fn send(&mut self, cmd: Command) -> Result<(), RecordError> {
+        let tx = self.tx.as_ref().ok_or_else(|| RecordError::Stopped("recorder already finished".into()))?;
+        if tx.send(cmd).is_err() {
+            // The thread ended: collect its error.
+            return Err(self.join_error());
+        }
+        Ok(())
+    }
+
+    fn join_error(&mut self) -> RecordError {
+        self.tx = None;
+        match self.handle.take().map(|h| h.join()) {
+            Some(Ok(Err(e))) => e,
+            Some(Err(_)) => RecordError::Stopped("recorder thread panicked".into()),
+            _ => RecordError::Stopped("recorder thread ended".into()),
+        }
+    }
+
+    /// Logs an encodable message at simulated time `t` (s).
+    pub fn log<T: Encode>(&mut self, channel: ChannelId, t: f64, msg: &T) -> Result<(), RecordError> {
+        let mut data = Vec::with_capacity(msg.encoded_len().unwrap_or(256));
+        msg.encode(&mut data).map_err(|e| RecordError::Stopped(format!("encoding failed: {e}")))?;
+        self.log_bytes(channel, t, data)
+    }
+
+    /// Logs already encoded bytes at simulated time `t` (s).
+    pub fn log_bytes(&mut self, channel: ChannelId, t: f64, data: Vec<u8>) -> Result<(), RecordError> {
+        self.sequence += 1;
+        self.send(Command::Message { channel: channel.0, log_time: sim_time_ns(t), data })
+    }
+
+    pub fn metadata(&mut self, name: &str, entries: BTreeMap<String, String>) -> Result<(), RecordError> {
+        self.send(Command::Metadata { name: name.into(), entries })
+    }
+
+    /// Writes the summary section and closes the file; returns the message bytes written.
+    pub fn finish(mut self) -> Result<u64, RecordError> {
+        self.tx = None;
+        match self.handle.take().map(|h| h.join()) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(RecordError::Stopped("recorder thread panicked".into())),
+            None => Err(RecordError::Stopped("recorder already finished".into())),
+        }
+    }
+}
+
+/// Simulated seconds to MCAP nanoseconds (the timeline starts at t = 0).
+pub fn sim_time_ns(t: f64) -> u64 {
+    (t.max(0.0) * 1e9).round() as u64
+}
+
+/// Foxglove timestamp of simulated time `t`.
+pub fn timestamp(t: f64) -> foxglove::schemas::Timestamp {
+    let ns = sim_time_ns(t);
+    foxglove::schemas::Timestamp::new((ns / 1_000_000_000) as u32, (ns % 1_000_000_000) as u32)
+}

@@ -1,0 +1,681 @@
+//! Scene files: the TOML a user writes (`*Spec` types, serde, unknown keys
+//! rejected) and the checked [`Scene`] every process runs from.
+//!
+//! All values are SI (m, s, kg, N, Pa). Loading goes through
+//! [`Scene::from_toml_str`] (or [`Scene::load`]), which applies `--set`
+//! overrides to the raw TOML, deserialises with the key path of any error,
+//! then validates every value once. Keys and defaults are documented in
+//! `docs/scenes.md`; keep the two in step.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::SceneError;
+use crate::overrides::apply_override;
+
+/// Standard gravity, m/s², used only for the default of `domain.gravity`
+/// in examples; scenes always state their gravity.
+pub const STANDARD_GRAVITY: f64 = 9.81;
+
+// ---------------------------------------------------------------------------
+// Raw file types
+// ---------------------------------------------------------------------------
+
+/// The whole scene file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneSpec {
+    pub scene: MetaSpec,
+    pub domain: DomainSpec,
+    #[serde(default)]
+    pub gates: Vec<GateSpec>,
+    #[serde(default)]
+    pub particles: Vec<ParticleBlockSpec>,
+    #[serde(default)]
+    pub fluids: Vec<FluidBlockSpec>,
+    #[serde(default)]
+    pub dem: Option<DemSpec>,
+    #[serde(default)]
+    pub deposition: DepositionSpec,
+    pub output: OutputSpec,
+    pub analysis: AnalysisSpec,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MetaSpec {
+    /// Short identifier, used in file names and recordings.
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+}
+
+/// Axis-aligned box holding everything, with gravity and the faces that are walls.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DomainSpec {
+    /// Lower corner, m.
+    pub min: [f64; 3],
+    /// Upper corner, m.
+    pub max: [f64; 3],
+    /// Gravitational acceleration, m/s².
+    pub gravity: [f64; 3],
+    /// Faces of the box that are solid walls: any of
+    /// `x_min x_max y_min y_max z_min z_max`. Faces not listed are open.
+    pub walls: Vec<Face>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Face {
+    XMin,
+    XMax,
+    YMin,
+    YMax,
+    ZMin,
+    ZMax,
+}
+
+impl Face {
+    pub const ALL: [Face; 6] = [Face::XMin, Face::XMax, Face::YMin, Face::YMax, Face::ZMin, Face::ZMax];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Face::XMin => "x_min",
+            Face::XMax => "x_max",
+            Face::YMin => "y_min",
+            Face::YMax => "y_max",
+            Face::ZMin => "z_min",
+            Face::ZMax => "z_max",
+        }
+    }
+
+    /// Axis index (0 = x) and the inward normal sign.
+    pub fn axis_and_sign(self) -> (usize, f64) {
+        match self {
+            Face::XMin => (0, 1.0),
+            Face::XMax => (0, -1.0),
+            Face::YMin => (1, 1.0),
+            Face::YMax => (1, -1.0),
+            Face::ZMin => (2, 1.0),
+            Face::ZMax => (2, -1.0),
+        }
+    }
+}
+
+/// A plane wall that disappears at `release_time` (the lab's lifted gate).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GateSpec {
+    pub name: String,
+    /// Any point of the plane, m.
+    pub point: [f64; 3],
+    /// Normal pointing to the side the material is held on (normalised at load).
+    pub normal: [f64; 3],
+    /// Time after the start of the run at which the gate is removed, s.
+    pub release_time: f64,
+}
+
+/// One group of grains with common material.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParticleBlockSpec {
+    pub name: String,
+    /// Grain density, kg/m³.
+    pub density: f64,
+    /// Grain diameter, m (mean diameter when `diameter_spread > 0`).
+    pub diameter: f64,
+    /// Relative half-width of a uniform diameter distribution, e.g. 0.1 for
+    /// D·(1 ± 0.1). Default 0 (monodisperse).
+    #[serde(default)]
+    pub diameter_spread: f64,
+    pub packing: PackingSpec,
+}
+
+/// How the grains of a block are placed.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "method", rename_all = "snake_case", deny_unknown_fields)]
+pub enum PackingSpec {
+    /// Grains rain into `region` under gravity (with `[deposition]` settings)
+    /// until at rest; grains whose centre ends above the region top are removed.
+    Deposit {
+        region: BoxSpec,
+        /// Target bulk porosity of the region; sets the grain count. Exactly
+        /// one of `porosity` and `count`.
+        #[serde(default)]
+        porosity: Option<f64>,
+        #[serde(default)]
+        count: Option<usize>,
+        /// Seed of the initial placement jitter.
+        seed: u64,
+    },
+    /// Grains at given positions: inline `spheres = [[x, y, z, d], ...]` or a
+    /// CSV `file` with columns x,y,z,d (m), relative to the scene file.
+    Explicit {
+        #[serde(default)]
+        spheres: Vec<[f64; 4]>,
+        #[serde(default)]
+        file: Option<PathBuf>,
+        /// Initial velocity of every grain, m/s. Default 0.
+        #[serde(default)]
+        velocity: [f64; 3],
+    },
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxSpec {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+/// A body of liquid (used by the LBM process; validated here).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidBlockSpec {
+    pub name: String,
+    /// kg/m³.
+    pub density: f64,
+    /// Dynamic viscosity, Pa·s.
+    pub viscosity: f64,
+    pub region: BoxSpec,
+}
+
+/// DEM contact law and numerics (paper Eqs. 1–3, Table 2).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DemSpec {
+    /// k_n, N/m.
+    pub normal_stiffness: f64,
+    /// k_t / k_n. Default 2/7.
+    #[serde(default = "default_tangential_ratio")]
+    pub tangential_stiffness_ratio: f64,
+    /// Normal coefficient of restitution e ∈ (0, 1]; the damping is derived from it.
+    pub restitution: f64,
+    /// Sliding friction μ_s between grains.
+    pub friction: f64,
+    /// Rolling friction μ_r between grains.
+    pub rolling_friction: f64,
+    /// Sliding friction grain–wall. Default: `friction`.
+    #[serde(default)]
+    pub wall_friction: Option<f64>,
+    /// Rolling friction grain–wall. Default: `rolling_friction`.
+    #[serde(default)]
+    pub wall_rolling_friction: Option<f64>,
+    /// Time step, s. Default: contact duration / `steps_per_contact`.
+    #[serde(default)]
+    pub time_step: Option<f64>,
+    /// Steps per grain–grain contact duration when `time_step` is not given. Default 25.
+    #[serde(default = "default_steps_per_contact")]
+    pub steps_per_contact: f64,
+    /// Verlet skin as a fraction of the largest diameter. Default 0.15.
+    #[serde(default = "default_skin")]
+    pub neighbour_skin: f64,
+}
+
+fn default_tangential_ratio() -> f64 {
+    2.0 / 7.0
+}
+fn default_steps_per_contact() -> f64 {
+    25.0
+}
+fn default_skin() -> f64 {
+    0.15
+}
+
+/// Gravity deposition that builds the initial packing.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DepositionSpec {
+    /// Grain–grain and grain–wall sliding friction during deposition. Lower
+    /// values give denser packings. Default 0.1.
+    #[serde(default = "default_deposition_friction")]
+    pub friction: f64,
+    /// Rolling friction during deposition. Default 0.
+    #[serde(default)]
+    pub rolling_friction: f64,
+    /// The packing is at rest when the fastest grain is slower than this, m/s. Default 0.01.
+    #[serde(default = "default_rest_speed")]
+    pub rest_speed: f64,
+    /// Give up (with an error) after this much simulated time, s. Default 3.
+    #[serde(default = "default_deposition_time")]
+    pub max_time: f64,
+    /// Reuse a packing settled before from the same inputs. Default true.
+    #[serde(default = "default_true")]
+    pub cache: bool,
+}
+
+impl Default for DepositionSpec {
+    fn default() -> Self {
+        Self {
+            friction: default_deposition_friction(),
+            rolling_friction: 0.0,
+            rest_speed: default_rest_speed(),
+            max_time: default_deposition_time(),
+            cache: true,
+        }
+    }
+}
+
+fn default_deposition_friction() -> f64 {
+    0.1
+}
+fn default_rest_speed() -> f64 {
+    0.01
+}
+fn default_deposition_time() -> f64 {
+    3.0
+}
+fn default_true() -> bool {
+    true
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSpec {
+    /// Simulated time of the run after the packing is ready, s.
+    pub end_time: f64,
+    /// Interval between recorded frames, s.
+    pub record_interval: f64,
+    /// Interval between full-precision state frames, s. Default: `record_interval`.
+    #[serde(default)]
+    pub state_interval: Option<f64>,
+    /// End early once every grain is slower than `rest_speed` after all gates
+    /// are released. Default true.
+    #[serde(default = "default_true")]
+    pub stop_at_rest: bool,
+    /// m/s. Default 0.005.
+    #[serde(default = "default_final_rest_speed")]
+    pub rest_speed: f64,
+    /// Also record every grain as a sphere of its true radius
+    /// (`foxglove.SceneUpdate`, ~0.1 kB per grain per frame). Default false.
+    #[serde(default)]
+    pub spheres: bool,
+}
+
+fn default_final_rest_speed() -> f64 {
+    0.005
+}
+
+/// Measures of the collapse (paper §2).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AnalysisSpec {
+    /// Initial column length L0 along x, m (from the back wall to the gate).
+    pub column_length: f64,
+    /// Initial column height H0, m.
+    pub column_height: f64,
+    /// `dry` (t_ref = √(H0/g)) or `saturated` (t_ref = √(H0/g′)).
+    pub condition: Condition,
+    /// Mass fraction beyond the front, default 0.005 (0.5 %).
+    #[serde(default = "default_front_fraction")]
+    pub front_mass_fraction: f64,
+    /// Bin width of the deposit profile along x, m. Default: largest grain diameter.
+    #[serde(default)]
+    pub deposit_bin: Option<f64>,
+}
+
+fn default_front_fraction() -> f64 {
+    0.005
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Condition {
+    Dry,
+    Saturated,
+}
+
+// ---------------------------------------------------------------------------
+// Checked scene
+// ---------------------------------------------------------------------------
+
+/// A validated scene. Constructed only by [`Scene::from_toml_str`] / [`Scene::load`].
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// The spec after overrides, as validated (serialise it to reproduce the run).
+    pub spec: SceneSpec,
+    /// Directory relative paths in the scene resolve against.
+    pub base_dir: PathBuf,
+    /// Unit normals of the gates, in `spec.gates` order.
+    pub gate_normals: Vec<[f64; 3]>,
+    /// Explicit grains loaded from files or inline, per block (empty for deposit blocks).
+    pub explicit_spheres: Vec<Vec<[f64; 4]>>,
+}
+
+/// Which solver processes a scene needs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// Grains only: `dem_proc`.
+    DemDry,
+    /// Liquid only: `lbm_proc`.
+    LbmFluid,
+    /// Grains and liquid: `dem_proc` + `lbm_proc`.
+    DemLbm,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::DemDry => "dem",
+            Method::LbmFluid => "lbm",
+            Method::DemLbm => "dem_lbm",
+        }
+    }
+}
+
+impl Scene {
+    /// Reads, overrides and validates a scene file.
+    pub fn load(path: &Path, overrides: &[String]) -> Result<Scene, SceneError> {
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            SceneError::new("", format!("cannot read scene file {}: {e}", path.display()))
+        })?;
+        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Self::from_toml_str(&text, &base, overrides)
+    }
+
+    /// Parses TOML text, applies `KEY.PATH=VALUE` overrides, validates.
+    pub fn from_toml_str(text: &str, base_dir: &Path, overrides: &[String]) -> Result<Scene, SceneError> {
+        let mut value: toml::Value = toml::from_str(text)
+            .map_err(|e| SceneError::new("", format!("not valid TOML: {}", e.message().trim())))?;
+        for ov in overrides {
+            apply_override(&mut value, ov)?;
+        }
+        let spec: SceneSpec = serde_path_to_error::deserialize(value).map_err(|e| {
+            let path = e.path().to_string();
+            let path = if path == "." { String::new() } else { path };
+            SceneError::new(path, e.into_inner().message().trim().to_string())
+        })?;
+        Self::validate(spec, base_dir)
+    }
+
+    fn validate(spec: SceneSpec, base_dir: &Path) -> Result<Scene, SceneError> {
+        let mut v = Validator::default();
+        v.nonempty("scene.name", &spec.scene.name);
+        if !spec.scene.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
+            v.fail("scene.name", format!("use letters, digits, '_' and '-' only, got {:?}", spec.scene.name));
+        }
+
+        let d = &spec.domain;
+        for a in 0..3 {
+            v.finite(&format!("domain.min[{a}]"), d.min[a]);
+            v.finite(&format!("domain.max[{a}]"), d.max[a]);
+            v.finite(&format!("domain.gravity[{a}]"), d.gravity[a]);
+            if d.max[a] <= d.min[a] {
+                v.fail(&format!("domain.max[{a}]"), format!("must be > domain.min[{a}] = {}, got {}", d.min[a], d.max[a]));
+            }
+        }
+        for (i, f) in d.walls.iter().enumerate() {
+            if d.walls[..i].contains(f) {
+                v.fail("domain.walls", format!("face {} listed twice", f.name()));
+            }
+        }
+
+        let mut gate_normals = Vec::new();
+        for (g, gate) in spec.gates.iter().enumerate() {
+            let key = format!("gates[{g}]");
+            v.nonempty(&format!("{key}.name"), &gate.name);
+            v.finite_vec(&format!("{key}.point"), &gate.point);
+            v.finite_vec(&format!("{key}.normal"), &gate.normal);
+            let n = norm(gate.normal);
+            if n == 0.0 || !n.is_finite() {
+                v.fail(&format!("{key}.normal"), "must be a non-zero vector".into());
+                gate_normals.push([1.0, 0.0, 0.0]);
+            } else {
+                gate_normals.push([gate.normal[0] / n, gate.normal[1] / n, gate.normal[2] / n]);
+            }
+            v.at_least(&format!("{key}.release_time"), gate.release_time, 0.0);
+        }
+
+        let mut explicit_spheres = Vec::new();
+        for (b, block) in spec.particles.iter().enumerate() {
+            let key = format!("particles[{b}]");
+            v.nonempty(&format!("{key}.name"), &block.name);
+            v.positive(&format!("{key}.density"), block.density);
+            v.positive(&format!("{key}.diameter"), block.diameter);
+            v.in_range(&format!("{key}.diameter_spread"), block.diameter_spread, 0.0, 0.9);
+            let mut spheres = Vec::new();
+            match &block.packing {
+                PackingSpec::Deposit { region, porosity, count, .. } => {
+                    v.region(&format!("{key}.packing.region"), region, d);
+                    match (porosity, count) {
+                        (Some(_), Some(_)) | (None, None) => v.fail(
+                            &format!("{key}.packing"),
+                            "give exactly one of `porosity` and `count`".into(),
+                        ),
+                        (Some(n), None) => v.open_range(&format!("{key}.packing.porosity"), *n, 0.25, 1.0),
+                        (None, Some(c)) => {
+                            if *c == 0 {
+                                v.fail(&format!("{key}.packing.count"), "must be > 0, got 0".into());
+                            }
+                        }
+                    }
+                }
+                PackingSpec::Explicit { spheres: inline, file, velocity } => {
+                    v.finite_vec(&format!("{key}.packing.velocity"), velocity);
+                    spheres.extend_from_slice(inline);
+                    if let Some(f) = file {
+                        let p = base_dir.join(f);
+                        match read_sphere_csv(&p) {
+                            Ok(s) => spheres.extend(s),
+                            Err(e) => v.fail(&format!("{key}.packing.file"), e),
+                        }
+                    }
+                    if spheres.is_empty() {
+                        v.fail(&format!("{key}.packing"), "an explicit packing needs `spheres` or `file` with at least one grain".into());
+                    }
+                    for (i, s) in spheres.iter().enumerate() {
+                        let k = format!("{key}.packing.spheres[{i}]");
+                        if s.iter().any(|x| !x.is_finite()) || s[3] <= 0.0 {
+                            v.fail(&k, format!("needs finite x, y, z and a diameter > 0, got {s:?}"));
+                        } else if (0..3).any(|a| s[a] < d.min[a] || s[a] > d.max[a]) {
+                            v.fail(&k, format!("centre {:?} lies outside the domain", &s[..3]));
+                        }
+                    }
+                }
+            }
+            explicit_spheres.push(spheres);
+        }
+
+        for (f, fluid) in spec.fluids.iter().enumerate() {
+            let key = format!("fluids[{f}]");
+            v.nonempty(&format!("{key}.name"), &fluid.name);
+            v.positive(&format!("{key}.density"), fluid.density);
+            v.positive(&format!("{key}.viscosity"), fluid.viscosity);
+            v.region(&format!("{key}.region"), &fluid.region, d);
+        }
+
+        if !spec.particles.is_empty() && spec.dem.is_none() {
+            v.fail("dem", "the scene has particle blocks, so it needs a [dem] table with the contact parameters".into());
+        }
+        if let Some(dem) = &spec.dem {
+            v.positive("dem.normal_stiffness", dem.normal_stiffness);
+            v.in_range("dem.tangential_stiffness_ratio", dem.tangential_stiffness_ratio, 0.0, 1.0);
+            v.half_open("dem.restitution", dem.restitution, 0.0, 1.0);
+            v.at_least("dem.friction", dem.friction, 0.0);
+            v.at_least("dem.rolling_friction", dem.rolling_friction, 0.0);
+            if let Some(x) = dem.wall_friction {
+                v.at_least("dem.wall_friction", x, 0.0);
+            }
+            if let Some(x) = dem.wall_rolling_friction {
+                v.at_least("dem.wall_rolling_friction", x, 0.0);
+            }
+            if let Some(dt) = dem.time_step {
+                v.positive("dem.time_step", dt);
+            }
+            v.in_range("dem.steps_per_contact", dem.steps_per_contact, 5.0, 1e6);
+            v.in_range("dem.neighbour_skin", dem.neighbour_skin, 0.01, 2.0);
+        }
+
+        let dep = &spec.deposition;
+        v.at_least("deposition.friction", dep.friction, 0.0);
+        v.at_least("deposition.rolling_friction", dep.rolling_friction, 0.0);
+        v.positive("deposition.rest_speed", dep.rest_speed);
+        v.positive("deposition.max_time", dep.max_time);
+
+        let o = &spec.output;
+        v.positive("output.end_time", o.end_time);
+        v.positive("output.record_interval", o.record_interval);
+        if let Some(s) = o.state_interval {
+            v.positive("output.state_interval", s);
+        }
+        v.positive("output.rest_speed", o.rest_speed);
+
+        let a = &spec.analysis;
+        v.positive("analysis.column_length", a.column_length);
+        v.positive("analysis.column_height", a.column_height);
+        v.open_range("analysis.front_mass_fraction", a.front_mass_fraction, 0.0, 0.5);
+        if let Some(b) = a.deposit_bin {
+            v.positive("analysis.deposit_bin", b);
+        }
+        if a.condition == Condition::Saturated && spec.fluids.is_empty() {
+            v.fail("analysis.condition", "`saturated` needs at least one [[fluids]] block".into());
+        }
+        if spec.particles.is_empty() && spec.fluids.is_empty() {
+            v.fail("", "the scene has neither [[particles]] nor [[fluids]]: nothing to simulate".into());
+        }
+        if norm(d.gravity) == 0.0 && spec.particles.iter().any(|p| matches!(p.packing, PackingSpec::Deposit { .. })) {
+            v.fail("domain.gravity", "gravity deposition needs non-zero gravity".into());
+        }
+
+        v.finish()?;
+        Ok(Scene { spec, base_dir: base_dir.to_path_buf(), gate_normals, explicit_spheres })
+    }
+
+    /// The processes this scene needs.
+    pub fn method(&self) -> Method {
+        match (self.spec.particles.is_empty(), self.spec.fluids.is_empty()) {
+            (false, true) => Method::DemDry,
+            (true, false) => Method::LbmFluid,
+            _ => Method::DemLbm,
+        }
+    }
+
+    /// The DEM table; present whenever the scene has grains (checked at load).
+    pub fn dem(&self) -> &DemSpec {
+        self.spec.dem.as_ref().expect("validated: scenes with particles have [dem]")
+    }
+
+    /// |g|, m/s².
+    pub fn gravity_magnitude(&self) -> f64 {
+        norm(self.spec.domain.gravity)
+    }
+
+    /// Reference time of the collapse: √(H0/g) dry, √(H0/g′) saturated with
+    /// g′ = g(ρ_s − ρ_L)/ρ_s using the first particle and fluid blocks.
+    pub fn reference_time(&self) -> f64 {
+        let g = self.gravity_magnitude();
+        let h0 = self.spec.analysis.column_height;
+        let g_eff = match self.spec.analysis.condition {
+            Condition::Dry => g,
+            Condition::Saturated => {
+                let rho_s = self.spec.particles.first().map(|p| p.density).unwrap_or(f64::NAN);
+                let rho_l = self.spec.fluids.first().map(|f| f.density).unwrap_or(0.0);
+                g * (rho_s - rho_l) / rho_s
+            }
+        };
+        (h0 / g_eff).sqrt()
+    }
+
+    /// The scene as TOML, after overrides: what a run actually used.
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(&self.spec).expect("scene spec serialises")
+    }
+}
+
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+fn read_sphere_csv(path: &Path) -> Result<Vec<[f64; 4]>, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let mut out = Vec::new();
+    for (ln, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') || line.starts_with('x') {
+            continue;
+        }
+        let vals: Result<Vec<f64>, _> = line.split(',').map(|s| s.trim().parse::<f64>()).collect();
+        match vals {
+            Ok(v) if v.len() == 4 => out.push([v[0], v[1], v[2], v[3]]),
+            _ => return Err(format!("{}:{}: expected `x,y,z,d` in metres, got {line:?}", path.display(), ln + 1)),
+        }
+    }
+    Ok(out)
+}
+
+/// Collects every problem of a scene, so one load reports them all.
+#[derive(Default)]
+struct Validator {
+    problems: Vec<(String, String)>,
+}
+
+impl Validator {
+    fn fail(&mut self, key: &str, reason: String) {
+        self.problems.push((key.to_string(), reason));
+    }
+    fn nonempty(&mut self, key: &str, s: &str) {
+        if s.trim().is_empty() {
+            self.fail(key, "must not be empty".into());
+        }
+    }
+    fn finite(&mut self, key: &str, x: f64) {
+        if !x.is_finite() {
+            self.fail(key, format!("must be a finite number, got {x}"));
+        }
+    }
+    fn finite_vec(&mut self, key: &str, x: &[f64; 3]) {
+        if x.iter().any(|c| !c.is_finite()) {
+            self.fail(key, format!("must be finite, got {x:?}"));
+        }
+    }
+    fn positive(&mut self, key: &str, x: f64) {
+        if !(x > 0.0 && x.is_finite()) {
+            self.fail(key, format!("must be > 0, got {x}"));
+        }
+    }
+    fn at_least(&mut self, key: &str, x: f64, lo: f64) {
+        if !(x >= lo && x.is_finite()) {
+            self.fail(key, format!("must be >= {lo}, got {x}"));
+        }
+    }
+    fn in_range(&mut self, key: &str, x: f64, lo: f64, hi: f64) {
+        if !(x >= lo && x <= hi) {
+            self.fail(key, format!("must be in [{lo}, {hi}], got {x}"));
+        }
+    }
+    fn open_range(&mut self, key: &str, x: f64, lo: f64, hi: f64) {
+        if !(x > lo && x < hi) {
+            self.fail(key, format!("must be in ({lo}, {hi}), got {x}"));
+        }
+    }
+    fn half_open(&mut self, key: &str, x: f64, lo: f64, hi: f64) {
+        if !(x > lo && x <= hi) {
+            self.fail(key, format!("must be in ({lo}, {hi}], got {x}"));
+        }
+    }
+    fn region(&mut self, key: &str, r: &BoxSpec, d: &DomainSpec) {
+        for a in 0..3 {
+            if !(r.min[a].is_finite() && r.max[a].is_finite()) {
+                self.fail(key, format!("corners must be finite, got min {:?} max {:?}", r.min, r.max));
+                return;
+            }
+            if r.max[a] <= r.min[a] {
+                self.fail(&format!("{key}.max[{a}]"), format!("must be > min[{a}] = {}, got {}", r.min[a], r.max[a]));
+            }
+            if r.min[a] < d.min[a] || r.max[a] > d.max[a] {
+                self.fail(key, format!("region {:?}..{:?} is not inside the domain {:?}..{:?}", r.min, r.max, d.min, d.max));
+                return;
+            }
+        }
+    }
+    fn finish(self) -> Result<(), SceneError> {
+        if self.problems.is_empty() {
+            Ok(())
+        } else {
+            Err(SceneError::many(self.problems))
+        }
+    }
+}

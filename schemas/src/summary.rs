@@ -1,0 +1,73 @@
+//! `summary.json`: the result of a run, in one form for every method.
+//! Field names are a public contract (scripts read them): add, never rename.
+
+use serde::{Deserialize, Serialize};
+
+use crate::measures::FrontSample;
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RunSummary {
+    /// Scene name.
+    pub scene: String,
+    /// `dem`, `lbm`, `dem_lbm`, `mpm`.
+    pub method: String,
+    /// `completed`, `at_rest` (stopped early, everything at rest), `interrupted`, `failed`.
+    pub status: String,
+    /// Simulated time reached after the gate opened, s.
+    pub sim_time: f64,
+    /// Wall time of the solver loop (deposition excluded), s.
+    pub wall_seconds: f64,
+    /// Solver steps taken after the gate opened.
+    pub steps: u64,
+    pub throughput: Throughput,
+    /// Reference time used to normalise t, s.
+    pub t_ref: f64,
+    /// Solid front over time.
+    pub front: Vec<FrontSample>,
+    /// (L_f − L0)/L0 at the end.
+    pub runout: f64,
+    /// Final deposit profile: [x, height] pairs, m.
+    pub deposit: Vec<[f64; 2]>,
+    /// Bulk porosity of the initial column, 1 − V_solid/(L0 W H0).
+    pub porosity_initial: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dem: Option<DemDetails>,
+    /// Wall time of the whole run as the coupler saw it, s (set by the coupler).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wall_seconds_total: Option<f64>,
+}
+
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct Throughput {
+    /// DEM particle-steps per second of wall time.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub particle_steps_per_s: Option<f64>,
+    /// Wall seconds per simulated second.
+    pub wall_per_sim_second: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct DemDetails {
+    pub particles: usize,
+    pub time_step: f64,
+    /// Damping ratio ζ derived from the restitution.
+    pub damping_ratio: f64,
+    pub restitution: f64,
+    /// Grain–grain contact duration, s, and steps per contact.
+    pub contact_duration: f64,
+    pub steps_per_contact: f64,
+    /// Porosity in the core of the column (one diameter away from walls and top).
+    pub porosity_core: f64,
+    /// Height of the initial column (highest grain top), m.
+    pub initial_height: f64,
+    /// Whether the packing came from the cache.
+    pub packing_from_cache: bool,
+    /// Wall time of the deposition (0 if cached), s.
+    pub deposition_seconds: f64,
+    /// Mean coordination number at the start and the end.
+    pub coordination_initial: f64,
+    pub coordination_final: f64,
+    /// Fraction of the run's wall time spent handing frames to the recorder.
+    pub recording_fraction: f64,
+    pub threads: usize,
+}
