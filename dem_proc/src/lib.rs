@@ -1,1 +1,16 @@
-pub fn placeholder() {}
+//! 3D DEM of spheres for granular column collapses (Ceccato et al. 2020 §3.1).
+//!
+//! * [`law`]: the contact law (Eqs. 1–3), one kernel for grain–grain and grain–wall;
+//! * [`neighbours`]: linked cells and the Verlet pair list with contact history;
+//! * [`world`]: the state and its `step` (named stages, parallel, deterministic);
+//! * [`setup`]: laws, walls and time step from a scene;
+//! * [`packing`]: gravity deposition with a disk cache;
+//! * [`run`]: a whole run with recording and summary.
+
+pub mod law;
+pub mod neighbours;
+pub mod packing;
+pub mod rng;
+pub mod run;
+pub mod setup;
+pub mod world;

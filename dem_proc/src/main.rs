@@ -1,1 +1,150 @@
-fn main() {}
+//! `dem_proc`: runs the DEM on a scene, alone or under `coupler`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Instant;
+
+use clap::{Parser, Subcommand};
+
+use dem_proc::run::{run, Progress, RunError, RunOptions};
+use schemas::{Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
+
+#[derive(Parser)]
+#[command(name = "dem_proc", version, about = "3D DEM solver process (spheres, Ceccato et al. 2020 contact law)")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a scene: deposit (or load) the packing, open the gates, record to OUT/dem.mcap.
+    Run {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// Output directory.
+        #[arg(long, default_value = "runs/dem")]
+        out: PathBuf,
+        /// Override a scene value, e.g. --set output.end_time=0.2 (repeatable).
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        /// Worker threads (default: all cores). Results do not depend on it.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Skip the MCAP recording (to measure what recording costs).
+        #[arg(long)]
+        no_record: bool,
+        /// Machine-readable progress on stdout, one JSON object per line (used by `coupler`).
+        #[arg(long)]
+        progress_json: bool,
+        /// Stop when the parent process dies (set by `coupler`).
+        #[arg(long)]
+        supervised: bool,
+    },
+}
+
+struct Reporter {
+    json: bool,
+    started: Instant,
+}
+
+impl Progress for Reporter {
+    fn deposition(&mut self, t: f64, t_max: f64) {
+        if self.json {
+            println!("{{\"event\":\"progress\",\"phase\":\"deposition\",\"t\":{t},\"t_end\":{t_max},\"wall\":{}}}", self.started.elapsed().as_secs_f64());
+        } else {
+            eprintln!("deposition: t = {t:.4} s");
+        }
+    }
+    fn collapse(&mut self, t: f64, t_end: f64, steps: u64) {
+        if self.json {
+            println!("{{\"event\":\"progress\",\"phase\":\"collapse\",\"t\":{t},\"t_end\":{t_end},\"steps\":{steps},\"wall\":{}}}", self.started.elapsed().as_secs_f64());
+        } else {
+            eprintln!("collapse: t = {t:.4} / {t_end} s, {steps} steps, {:.1} s wall", self.started.elapsed().as_secs_f64());
+        }
+    }
+    fn log(&mut self, message: &str) {
+        eprintln!("dem_proc: {message}");
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Run { scene, out, set, threads, no_record, progress_json, supervised } => {
+            if supervised {
+                die_with_parent();
+            }
+            let scene = match Scene::load(&scene, &set) {
+                Ok(s) => s,
+                Err(e) => {
+                    eprintln!("dem_proc: invalid scene {}:\n{e}", scene.display());
+                    return ExitCode::from(EXIT_BAD_SCENE as u8);
+                }
+            };
+            if scene.spec.particles.is_empty() {
+                eprintln!("dem_proc: the scene has no [[particles]] blocks; nothing for the DEM to do (fluid-only scenes run in lbm_proc)");
+                return ExitCode::from(EXIT_BAD_SCENE as u8);
+            }
+            if let Some(n) = threads {
+                if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global() {
+                    eprintln!("dem_proc: cannot set {n} threads: {e}");
+                    return ExitCode::FAILURE;
+                }
+            }
+            let stop = Arc::new(AtomicBool::new(false));
+            for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+                if let Err(e) = signal_hook::flag::register(sig, Arc::clone(&stop)) {
+                    eprintln!("dem_proc: cannot install signal handler: {e}");
+                    return ExitCode::FAILURE;
+                }
+            }
+            let mut reporter = Reporter { json: progress_json, started: Instant::now() };
+            let opts = RunOptions { out_dir: out, record: !no_record };
+            match run(&scene, &opts, &stop, &mut reporter) {
+                Ok(summary) => {
+                    if progress_json {
+                        println!("{{\"event\":\"done\",\"status\":\"{}\"}}", summary.status);
+                    }
+                    eprintln!(
+                        "dem_proc: {} at t = {:.4} s after {} steps in {:.1} s ({:.3e} particle-steps/s); runout {:.4}",
+                        summary.status,
+                        summary.sim_time,
+                        summary.steps,
+                        summary.wall_seconds,
+                        summary.throughput.particle_steps_per_s.unwrap_or(0.0),
+                        summary.runout
+                    );
+                    if summary.status == "interrupted" {
+                        ExitCode::from(EXIT_INTERRUPTED as u8)
+                    } else {
+                        ExitCode::SUCCESS
+                    }
+                }
+                Err(RunError::Packing(dem_proc::packing::PackingError::Interrupted)) => {
+                    eprintln!("dem_proc: interrupted during deposition; nothing recorded");
+                    ExitCode::from(EXIT_INTERRUPTED as u8)
+                }
+                Err(e) => {
+                    eprintln!("dem_proc: error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+    }
+}
+
+/// Asks the kernel to send SIGTERM when the parent dies, so a killed coupler
+/// leaves no orphan solver (the SIGTERM handler then stops at a step boundary).
+fn die_with_parent() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: prctl with PR_SET_PDEATHSIG only sets a flag on this process.
+    unsafe {
+        libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+        if libc::getppid() == 1 {
+            libc::raise(libc::SIGTERM);
+        }
+    }
+}

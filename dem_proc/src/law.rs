@@ -1,0 +1,130 @@
+//! The contact law of Ceccato et al. 2020 (Eqs. 1–3), one kernel shared by
+//! grain–grain and grain–wall contacts.
+//!
+//! * Normal (Eq. 1): F_n = k_n δ + c_n δ̇ with c_n = 2ζ√(k_n m*), clamped at
+//!   zero (never attractive). ζ is derived from the restitution e so that the
+//!   clamped law rebounds with exactly e ([`schemas::contact::damping_ratio_no_tension`]).
+//! * Tangential (Eq. 2): history spring ξ (k_t = ratio·k_n) plus dashpot
+//!   c_t = 2ζ√(k_t m*), capped by Coulomb μ_s F_n (the paper prints `max`; the
+//!   physical law is the cap). While sliding the spring is truncated so that
+//!   spring + dashpot equals the cap (as LAMMPS `gran/hooke/history`).
+//!   The spring is rotated onto the current tangent plane every step.
+//! * Rolling (Eq. 3): torque of magnitude μ_r F_n D_eff/2 against the relative
+//!   rolling velocity ω_i − ω_j (its part normal to n), limited to the torque
+//!   that would just stop that rolling in one step, so it can stop rolling but
+//!   never reverse it. D_eff = 2 D_i D_j/(D_i + D_j) between grains (D for
+//!   equal grains) and D_i against a wall. Twisting is not resisted.
+
+use nalgebra::Vector3;
+
+pub type V3 = Vector3<f64>;
+
+/// Material constants of one kind of contact (grain–grain or grain–wall).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactLaw {
+    /// k_n, N/m.
+    pub normal_stiffness: f64,
+    /// k_t, N/m.
+    pub tangential_stiffness: f64,
+    /// ζ, the damping ratio of both dashpots.
+    pub damping_ratio: f64,
+    /// μ_s.
+    pub friction: f64,
+    /// μ_r.
+    pub rolling_friction: f64,
+}
+
+/// Geometry and kinematics of one contact, seen from body i.
+/// `n` points from i towards j (or towards the wall).
+#[derive(Debug, Clone, Copy)]
+pub struct ContactInput {
+    pub n: V3,
+    /// Overlap δ > 0, m.
+    pub overlap: f64,
+    /// Distance from each centre to the contact point, m (0 for j = wall).
+    pub arm_i: f64,
+    pub arm_j: f64,
+    pub vel_i: V3,
+    pub omega_i: V3,
+    pub vel_j: V3,
+    pub omega_j: V3,
+    /// m* = m_i m_j/(m_i + m_j), kg.
+    pub effective_mass: f64,
+    /// 1/I_i + 1/I_j, 1/(kg m²).
+    pub inv_inertia_sum: f64,
+    /// D_eff for the rolling torque, m.
+    pub rolling_diameter: f64,
+}
+
+/// What a contact does to both bodies.
+#[derive(Debug, Clone, Copy)]
+pub struct ContactOutput {
+    /// Force on i (j receives the opposite), N.
+    pub force_i: V3,
+    /// Torques on i and j, N m.
+    pub torque_i: V3,
+    pub torque_j: V3,
+}
+
+/// Evaluates the contact and advances its tangential spring `spring` by `dt`.
+///
+/// Pre: `overlap > 0`, `n` unit. Post: `|F_t| ≤ μ F_n`, `F_n ≥ 0`; the spring
+/// lies in the tangent plane.
+#[inline(always)]
+pub fn evaluate(law: &ContactLaw, c: &ContactInput, dt: f64, spring: &mut V3) -> ContactOutput {
+    let n = c.n;
+    let ri = c.arm_i * n;
+    let rj = -c.arm_j * n;
+    let v_contact = (c.vel_i + c.omega_i.cross(&ri)) - (c.vel_j + c.omega_j.cross(&rj));
+    let approach = v_contact.dot(&n);
+    let v_t = v_contact - approach * n;
+
+    let c_n = 2.0 * law.damping_ratio * (law.normal_stiffness * c.effective_mass).sqrt();
+    let f_n = (law.normal_stiffness * c.overlap + c_n * approach).max(0.0);
+
+    // Keep the spring in the tangent plane with its length (the contact frame rotated).
+    let old_len2 = spring.norm_squared();
+    if old_len2 > 0.0 {
+        let projected = *spring - spring.dot(&n) * n;
+        let new_len2 = projected.norm_squared();
+        *spring = if new_len2 > 0.0 { projected * (old_len2 / new_len2).sqrt() } else { V3::zeros() };
+    }
+    *spring += v_t * dt;
+
+    let k_t = law.tangential_stiffness;
+    let c_t = 2.0 * law.damping_ratio * (k_t * c.effective_mass).sqrt();
+    let mut f_t = -k_t * *spring - c_t * v_t;
+    let cap = law.friction * f_n;
+    let f_t_len2 = f_t.norm_squared();
+    if f_t_len2 > cap * cap {
+        f_t *= cap / f_t_len2.sqrt();
+        if k_t > 0.0 {
+            *spring = -(f_t + c_t * v_t) / k_t;
+        }
+    }
+
+    let force_i = -f_n * n + f_t;
+    let mut torque_i = ri.cross(&f_t);
+    let mut torque_j = rj.cross(&-f_t);
+
+    if law.rolling_friction > 0.0 && f_n > 0.0 {
+        let w = c.omega_i - c.omega_j;
+        let w_roll = w - w.dot(&n) * n;
+        let w_len = w_roll.norm();
+        if w_len > 0.0 {
+            let m_full = law.rolling_friction * f_n * 0.5 * c.rolling_diameter;
+            let m_stop = w_len / (c.inv_inertia_sum * dt);
+            let m = m_full.min(m_stop);
+            let t = (m / w_len) * w_roll;
+            torque_i -= t;
+            torque_j += t;
+        }
+    }
+
+    ContactOutput { force_i, torque_i, torque_j }
+}
+
+/// The damping ratio for restitution `e` under this law's no-tension clamp.
+pub fn damping_ratio_for(e: f64) -> f64 {
+    schemas::contact::damping_ratio_no_tension(e)
+}

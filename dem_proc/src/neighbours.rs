@@ -1,0 +1,197 @@
+//! Linked-cell neighbour search into a Verlet pair list with a skin.
+//!
+//! Cells are at least as wide as the largest interaction range
+//! (2 r_max + skin), so every candidate partner of a grain lies in its own or
+//! one of the 26 adjacent cells. Grains outside the grid are clamped into the
+//! border cells; the clamp is monotone, so no pair is lost.
+//!
+//! The list is stored as rows: row i holds the partners j > i, sorted by j.
+//! A reverse index gives, for each grain, the pairs where it is the j side,
+//! sorted by i. Summing a grain's contacts reverse-first then row gives a
+//! fixed order (by partner index), so forces do not depend on when the list
+//! was rebuilt, on the thread count, or on the candidate set.
+
+/// Uniform grid over the domain.
+#[derive(Debug, Clone)]
+pub struct CellGrid {
+    origin: [f64; 3],
+    inv_cell: f64,
+    dims: [usize; 3],
+    /// First grain of each cell in `sorted` (len = cells + 1).
+    cell_start: Vec<u32>,
+    sorted: Vec<u32>,
+    cell_of: Vec<u32>,
+    fill: Vec<u32>,
+}
+
+impl CellGrid {
+    pub fn new(min: [f64; 3], max: [f64; 3], cell: f64) -> Self {
+        let mut dims = [1usize; 3];
+        for a in 0..3 {
+            dims[a] = (((max[a] - min[a]) / cell).floor() as usize).clamp(1, 1 << 20);
+        }
+        // Cells may be wider than `cell` (floor), never narrower.
+        let width = (0..3).map(|a| (max[a] - min[a]) / dims[a] as f64).fold(f64::INFINITY, f64::min);
+        let cells = dims[0] * dims[1] * dims[2];
+        Self {
+            origin: min,
+            inv_cell: 1.0 / width.max(cell),
+            dims,
+            cell_start: vec![0; cells + 1],
+            sorted: Vec::new(),
+            cell_of: Vec::new(),
+            fill: Vec::new(),
+        }
+    }
+
+    fn coord(&self, p: &[f64; 3]) -> [usize; 3] {
+        let mut c = [0usize; 3];
+        for a in 0..3 {
+            let f = ((p[a] - self.origin[a]) * self.inv_cell).floor();
+            c[a] = if f.is_nan() || f < 0.0 { 0 } else { (f as usize).min(self.dims[a] - 1) };
+        }
+        c
+    }
+
+    fn index(&self, c: [usize; 3]) -> usize {
+        (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]
+    }
+
+    /// Counting sort of the grains into cells.
+    pub fn bin(&mut self, pos: &[[f64; 3]]) {
+        let n = pos.len();
+        self.cell_of.resize(n, 0);
+        self.sorted.resize(n, 0);
+        self.cell_start.iter_mut().for_each(|c| *c = 0);
+        for (i, p) in pos.iter().enumerate() {
+            let cell = self.index(self.coord(p)) as u32;
+            self.cell_of[i] = cell;
+            self.cell_start[cell as usize + 1] += 1;
+        }
+        for c in 1..self.cell_start.len() {
+            self.cell_start[c] += self.cell_start[c - 1];
+        }
+        // Fill using the end markers, walking grains backwards keeps each cell sorted by index.
+        self.fill.clear();
+        self.fill.extend_from_slice(&self.cell_start);
+        for i in (0..n).rev() {
+            let c = self.cell_of[i] as usize + 1;
+            self.fill[c] -= 1;
+            self.sorted[self.fill[c] as usize] = i as u32;
+        }
+    }
+
+    /// Calls `f(j)` for every grain in the 27 cells around grain `i`'s cell.
+    #[inline]
+    pub fn for_each_near(&self, p: &[f64; 3], mut f: impl FnMut(usize)) {
+        let c = self.coord(p);
+        let lo = |a: usize| c[a].saturating_sub(1);
+        let hi = |a: usize| (c[a] + 1).min(self.dims[a] - 1);
+        for z in lo(2)..=hi(2) {
+            for y in lo(1)..=hi(1) {
+                let row = (z * self.dims[1] + y) * self.dims[0];
+                let start = self.cell_start[row + lo(0)] as usize;
+                let end = self.cell_start[row + hi(0) + 1] as usize;
+                for &j in &self.sorted[start..end] {
+                    f(j as usize);
+                }
+            }
+        }
+    }
+}
+
+/// Candidate pairs with their contact history and per-step results.
+#[derive(Debug, Clone, Default)]
+pub struct PairList {
+    /// Row starts by i (len = grains + 1).
+    pub row_start: Vec<u32>,
+    pub i: Vec<u32>,
+    pub j: Vec<u32>,
+    /// Reverse index: for grain p, the pairs where p is j, sorted by i.
+    pub rev_start: Vec<u32>,
+    pub rev_pair: Vec<u32>,
+    /// Tangential spring of each pair (history), m.
+    pub spring: Vec<[f64; 3]>,
+    /// Force on i, and torques on i and j, from the last evaluation.
+    pub force: Vec<[f64; 3]>,
+    pub torque_i: Vec<[f64; 3]>,
+    pub torque_j: Vec<[f64; 3]>,
+    pub touching: Vec<bool>,
+    /// Scratch for building the reverse index.
+    cursor: Vec<u32>,
+}
+
+impl PairList {
+    pub fn len(&self) -> usize {
+        self.j.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.j.is_empty()
+    }
+
+    /// Spring of pair (i, j), if listed.
+    pub fn find(&self, i: usize, j: usize) -> Option<usize> {
+        let (a, b) = (self.row_start[i] as usize, self.row_start[i + 1] as usize);
+        self.j[a..b].binary_search(&(j as u32)).ok().map(|k| a + k)
+    }
+}
+
+/// Rebuilds `next` from positions, carrying each listed pair's spring over from `prev`.
+/// Buffers are reused; no allocation once they have grown.
+pub fn rebuild(grid: &mut CellGrid, pos: &[[f64; 3]], radius: &[f64], skin: f64, prev: &PairList, next: &mut PairList) {
+    let n = pos.len();
+    grid.bin(pos);
+    next.row_start.clear();
+    next.i.clear();
+    next.j.clear();
+    next.spring.clear();
+    next.row_start.push(0);
+    for i in 0..n {
+        let start = next.j.len();
+        let (pi, ri) = (&pos[i], radius[i]);
+        grid.for_each_near(pi, |j| {
+            if j > i {
+                let r = ri + radius[j] + skin;
+                let d = [pos[j][0] - pi[0], pos[j][1] - pi[1], pos[j][2] - pi[2]];
+                if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < r * r {
+                    next.j.push(j as u32);
+                }
+            }
+        });
+        next.j[start..].sort_unstable();
+        for k in start..next.j.len() {
+            let j = next.j[k] as usize;
+            next.i.push(i as u32);
+            let spring = if i + 1 < prev.row_start.len() { prev.find(i, j).map(|p| prev.spring[p]) } else { None };
+            next.spring.push(spring.unwrap_or([0.0; 3]));
+        }
+        next.row_start.push(next.j.len() as u32);
+    }
+    let m = next.j.len();
+    next.force.resize(m, [0.0; 3]);
+    next.torque_i.resize(m, [0.0; 3]);
+    next.torque_j.resize(m, [0.0; 3]);
+    next.touching.resize(m, false);
+
+    // Reverse index: counting sort of pairs by j; pairs are visited in i order,
+    // so each grain's reverse list is sorted by i.
+    next.rev_start.clear();
+    next.rev_start.resize(n + 1, 0);
+    for &j in &next.j {
+        next.rev_start[j as usize + 1] += 1;
+    }
+    for p in 1..=n {
+        next.rev_start[p] += next.rev_start[p - 1];
+    }
+    next.rev_pair.resize(m, 0);
+    let mut cursor = std::mem::take(&mut next.cursor);
+    cursor.clear();
+    cursor.extend_from_slice(&next.rev_start[..n]);
+    for k in 0..m {
+        let j = next.j[k] as usize;
+        next.rev_pair[cursor[j] as usize] = k as u32;
+        cursor[j] += 1;
+    }
+    next.cursor = cursor;
+}

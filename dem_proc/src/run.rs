@@ -1,0 +1,377 @@
+//! A whole DEM run: packing, gate release, collapse to rest or end time, with
+//! recording and the measures of the summary.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use foxglove::schemas::{
+    packed_element_field::NumericType, Color, Log, PackedElementField, PointCloud, Pose, Quaternion, SceneEntity,
+    SceneUpdate, SpherePrimitive, Vector3,
+};
+use serde::{Deserialize, Serialize};
+
+use schemas::measures::{deposit_profile, front_position, FrontSample};
+use schemas::metrics::DemMetrics;
+use schemas::record::{metadata, timestamp, topics, ChannelId, RecordError, Recorder, RecorderBuilder};
+use schemas::scene::Scene;
+use schemas::summary::{DemDetails, RunSummary, Throughput};
+
+use crate::packing::{self, PackingError};
+use crate::setup::{walls, DemSetup};
+use crate::world::{Grains, Histories, World};
+
+/// Version of the `/dem/state` bincode layout.
+pub const STATE_VERSION: u32 = 1;
+
+/// Full-precision state, enough to continue a run bit for bit (`/dem/state`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct DemState {
+    pub version: u32,
+    /// Simulated time since the gate opened, s.
+    pub time: f64,
+    pub step: u64,
+    pub grains: Grains,
+    pub histories: Histories,
+    /// Which walls (box faces, then gates) are still present.
+    pub walls_active: Vec<bool>,
+}
+
+impl DemState {
+    pub fn capture(world: &World) -> Self {
+        DemState {
+            version: STATE_VERSION,
+            time: world.time,
+            step: world.step_count,
+            grains: world.grains.clone(),
+            histories: world.histories(),
+            walls_active: world.walls.iter().map(|w| w.active).collect(),
+        }
+    }
+
+    pub fn encode(&self) -> Vec<u8> {
+        bincode::serde::encode_to_vec(self, bincode::config::standard()).expect("state encodes")
+    }
+
+    pub fn decode(bytes: &[u8]) -> Result<Self, String> {
+        bincode::serde::decode_from_slice(bytes, bincode::config::standard()).map(|(s, _)| s).map_err(|e| e.to_string())
+    }
+
+    /// A world continuing from this state under `scene`.
+    pub fn restore(&self, scene: &Scene) -> World {
+        let setup = DemSetup::from_scene(scene);
+        let mut ws = walls(scene, false);
+        for (w, active) in ws.iter_mut().zip(&self.walls_active) {
+            w.active = *active;
+        }
+        let mut world = World::new(self.grains.clone(), ws, setup.grain_law, setup.wall_law, setup.gravity, setup.numerics, setup.domain);
+        world.set_histories(&self.histories);
+        world.time = self.time;
+        world.step_count = self.step;
+        world
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Packing(#[from] PackingError),
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    #[error("numerical blow-up at t = {t:.5} s: grain {grain} reached {speed:.3e} m/s (overlap unbounded). The time step {dt:.3e} s gives {steps_per_contact:.1} steps per contact; lower dem.time_step or raise dem.steps_per_contact (>= 20 recommended)")]
+    BlowUp { t: f64, grain: usize, speed: f64, dt: f64, steps_per_contact: f64 },
+    #[error("cannot write {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+}
+
+/// How the run reports progress to whoever launched it.
+pub trait Progress {
+    fn deposition(&mut self, t: f64, t_max: f64);
+    fn collapse(&mut self, t: f64, t_end: f64, steps: u64);
+    fn log(&mut self, message: &str);
+}
+
+/// Options that are not part of the physics.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    pub out_dir: PathBuf,
+    /// Record to MCAP (off only for benchmarks measuring the recording cost).
+    pub record: bool,
+}
+
+struct Channels {
+    particles: ChannelId,
+    spheres: Option<ChannelId>,
+    metrics: ChannelId,
+    state: ChannelId,
+    log: ChannelId,
+}
+
+struct Frames {
+    recorder: Option<Recorder>,
+    channels: Option<Channels>,
+    seconds: f64,
+    scratch: Vec<(f64, f64)>,
+}
+
+impl Frames {
+    fn log(&mut self, t: f64, level: i32, message: &str) -> Result<(), RecordError> {
+        if let (Some(r), Some(c)) = (self.recorder.as_mut(), self.channels.as_ref()) {
+            let msg = Log { timestamp: Some(timestamp(t)), level, message: message.into(), name: "dem_proc".into(), file: String::new(), line: 0 };
+            r.log(c.log, t, &msg)?;
+        }
+        Ok(())
+    }
+}
+
+const LOG_INFO: i32 = 2;
+const LOG_WARN: i32 = 3;
+
+/// Where `dem_proc` writes its recording and its summary.
+pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
+    (out_dir.join("dem.mcap"), out_dir.join("dem_summary.json"))
+}
+
+/// Runs the scene. `stop` is polled every step; when set the run ends at the
+/// step boundary with status `interrupted` and a complete recording.
+pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut dyn Progress) -> Result<RunSummary, RunError> {
+    let setup = DemSetup::from_scene(scene);
+    let t_ref = scene.reference_time();
+    let l0 = scene.spec.analysis.column_length;
+    let x0 = scene.spec.domain.min[0];
+    let out = &scene.spec.output;
+
+    progress.log(&format!(
+        "contact law: k_n = {} N/m, k_t = {} N/m, e = {} -> damping ratio {:.5}; contact {:.3e} s; dt {:.3e} s ({:.1} steps per contact)",
+        setup.grain_law.normal_stiffness,
+        setup.grain_law.tangential_stiffness,
+        scene.dem().restitution,
+        setup.grain_law.damping_ratio,
+        setup.contact_duration,
+        setup.numerics.dt,
+        setup.steps_per_contact
+    ));
+    let packing = packing::build(scene, &setup, stop, |t, tmax| progress.deposition(t, tmax))?;
+    let rep = &packing.report;
+    progress.log(&if rep.from_cache {
+        format!("packing: {} grains from cache {}", rep.kept, rep.cache_file.as_ref().map(|p| p.display().to_string()).unwrap_or_default())
+    } else {
+        format!("packing: deposited {} grains in {:.3} s simulated ({:.1} s wall), kept {}", rep.generated, rep.deposition_time, rep.deposition_seconds, rep.kept)
+    });
+    if rep.porosity_bulk.is_finite() {
+        progress.log(&format!("packing porosity: bulk {:.4}, core {:.4}, height {:.4} m", rep.porosity_bulk, rep.porosity_core, rep.height));
+    }
+
+    let mut world = World::new(packing.grains.clone(), walls(scene, false), setup.grain_law, setup.wall_law, setup.gravity, setup.numerics, setup.domain);
+    world.set_histories(&packing.histories);
+    world.prime_forces();
+    let coordination_initial = world.mean_coordination();
+
+    std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
+    let (mcap_path, summary_path) = output_paths(&opts.out_dir);
+    let mut frames = Frames { recorder: None, channels: None, seconds: 0.0, scratch: Vec::new() };
+    if opts.record {
+        let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
+        let mut state_meta = BTreeMap::new();
+        state_meta.insert("encoding".into(), format!("bincode 2 (serde, standard config) of dem_proc::run::DemState version {STATE_VERSION}; see docs/recording.md"));
+        let channels = Channels {
+            particles: b.channel::<PointCloud>(topics::DEM_PARTICLES)?,
+            spheres: if out.spheres { Some(b.channel::<SceneUpdate>(topics::DEM_SPHERES)?) } else { None },
+            metrics: b.channel::<DemMetrics>(topics::DEM_METRICS)?,
+            state: b.raw_channel(topics::DEM_STATE, "bincode", state_meta)?,
+            log: b.channel::<Log>(topics::LOG)?,
+        };
+        let mut rec = b.start(64);
+        let mut meta = BTreeMap::new();
+        meta.insert("toml".into(), scene.to_toml());
+        rec.metadata(metadata::SCENE, meta)?;
+        frames.recorder = Some(rec);
+        frames.channels = Some(channels);
+    }
+
+    let dt = setup.numerics.dt;
+    let steps_per_frame = ((out.record_interval / dt).round() as u64).max(1);
+    let steps_per_state = ((out.state_interval.unwrap_or(out.record_interval) / dt).round() as u64).max(1);
+    let total_steps = (out.end_time / dt).ceil() as u64;
+    let last_release = world.walls.iter().map(|w| w.release_time).filter(|t| t.is_finite()).fold(0.0, f64::max);
+
+    let mut front = Vec::new();
+    let started = Instant::now();
+    let mut last_frame = (Instant::now(), 0u64);
+    let mut last_progress = Instant::now();
+    let mut status = "completed";
+    frames.log(0.0, LOG_INFO, &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk))?;
+    record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
+
+    while world.step_count < total_steps {
+        world.step();
+        let s = world.step_count;
+        if stop.load(Ordering::Relaxed) {
+            status = "interrupted";
+            frames.log(world.time, LOG_WARN, "interrupted by signal; recording the last state")?;
+            break;
+        }
+        if s % steps_per_frame == 0 {
+            let elapsed = last_frame.0.elapsed().as_secs_f64();
+            let rate = (s - last_frame.1) as f64 * world.len() as f64 / elapsed.max(1e-9);
+            last_frame = (Instant::now(), s);
+            let max_speed = record_frame(&mut frames, &world, scene, t_ref, &mut front, rate, s % steps_per_state == 0)?;
+            check_blow_up(&world, &setup)?;
+            if out.stop_at_rest && world.time > last_release && max_speed < out.rest_speed {
+                status = "at_rest";
+                break;
+            }
+        }
+        if last_progress.elapsed().as_secs_f64() > 0.5 {
+            progress.collapse(world.time, out.end_time, s);
+            last_progress = Instant::now();
+        }
+    }
+    let wall = started.elapsed().as_secs_f64();
+    progress.collapse(world.time, out.end_time, world.step_count);
+    if world.step_count % steps_per_frame != 0 || status != "completed" {
+        record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
+    }
+
+    let final_front = front.last().map(|f: &FrontSample| f.x).unwrap_or(f64::NAN);
+    let bin = scene.spec.analysis.deposit_bin.unwrap_or(setup.max_diameter);
+    let max_bins = (((scene.spec.domain.max[0] - x0) / bin).ceil() as usize).max(1);
+    let g = &world.grains;
+    let deposit = deposit_profile((0..g.len()).map(|p| (g.pos[p][0], g.pos[p][2] + g.radius[p])), x0, bin, max_bins);
+    let particle_steps = world.step_count as f64 * world.len() as f64;
+    let summary = RunSummary {
+        scene: scene.spec.scene.name.clone(),
+        method: "dem".into(),
+        status: status.into(),
+        sim_time: world.time,
+        wall_seconds: wall,
+        steps: world.step_count,
+        throughput: Throughput {
+            particle_steps_per_s: Some(particle_steps / wall.max(1e-9)),
+            wall_per_sim_second: wall / world.time.max(1e-12),
+        },
+        t_ref,
+        front,
+        runout: (final_front - x0 - l0) / l0,
+        deposit,
+        porosity_initial: rep.porosity_bulk,
+        dem: Some(DemDetails {
+            particles: world.len(),
+            time_step: dt,
+            damping_ratio: setup.grain_law.damping_ratio,
+            restitution: scene.dem().restitution,
+            contact_duration: setup.contact_duration,
+            steps_per_contact: setup.steps_per_contact,
+            porosity_core: rep.porosity_core,
+            initial_height: rep.height,
+            packing_from_cache: rep.from_cache,
+            deposition_seconds: if rep.from_cache { 0.0 } else { rep.deposition_seconds },
+            coordination_initial,
+            coordination_final: world.mean_coordination(),
+            recording_fraction: frames.seconds / wall.max(1e-9),
+            threads: rayon::current_num_threads(),
+        }),
+        wall_seconds_total: None,
+    };
+    let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
+    frames.log(world.time, LOG_INFO, &format!("run {status}: t = {:.4} s, runout {:.4}", world.time, summary.runout))?;
+    if let Some(mut rec) = frames.recorder.take() {
+        let mut meta = BTreeMap::new();
+        meta.insert("json".into(), json.clone());
+        rec.metadata(metadata::SUMMARY, meta)?;
+        rec.finish()?;
+    }
+    std::fs::write(&summary_path, json).map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
+    Ok(summary)
+}
+
+fn check_blow_up(world: &World, setup: &DemSetup) -> Result<(), RunError> {
+    // A grain faster than a free fall through 1000 domain heights has left physics.
+    let h = setup.domain.1[2] - setup.domain.0[2];
+    let g = world.gravity.iter().map(|x| x * x).sum::<f64>().sqrt().max(1.0);
+    let limit = (2.0 * g * 1000.0 * h).sqrt();
+    for (p, v) in world.grains.vel.iter().enumerate() {
+        let speed = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if !(speed < limit) {
+            return Err(RunError::BlowUp { t: world.time, grain: p, speed, dt: setup.numerics.dt, steps_per_contact: setup.steps_per_contact });
+        }
+    }
+    Ok(())
+}
+
+/// Records one frame; returns the largest grain speed.
+fn record_frame(frames: &mut Frames, world: &World, scene: &Scene, t_ref: f64, front: &mut Vec<FrontSample>, rate: f64, with_state: bool) -> Result<f64, RecordError> {
+    let started = Instant::now();
+    let g = &world.grains;
+    let t = world.time;
+    let x0 = scene.spec.domain.min[0];
+    let l0 = scene.spec.analysis.column_length;
+    let fx = front_position((0..g.len()).map(|p| (g.pos[p][0] + g.radius[p], g.mass[p])), scene.spec.analysis.front_mass_fraction, &mut frames.scratch);
+    let sample = FrontSample { t, t_norm: t / t_ref, x: fx, x_norm: (fx - x0 - l0) / l0 };
+    front.push(sample);
+    let max_speed = world.max_speed();
+
+    if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
+        const STRIDE: usize = 24;
+        let mut data = Vec::with_capacity(g.len() * STRIDE);
+        for p in 0..g.len() {
+            let v = g.vel[p];
+            let speed = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            for x in [g.pos[p][0], g.pos[p][1], g.pos[p][2], g.radius[p], speed, world.coordination[p] as f64] {
+                data.extend_from_slice(&(x as f32).to_le_bytes());
+            }
+        }
+        let field = |name: &str, offset: u32| PackedElementField { name: name.into(), offset, r#type: NumericType::Float32 as i32 };
+        let cloud = PointCloud {
+            timestamp: Some(timestamp(t)),
+            frame_id: "world".into(),
+            pose: Some(identity_pose()),
+            point_stride: STRIDE as u32,
+            fields: vec![field("x", 0), field("y", 4), field("z", 8), field("radius", 12), field("speed", 16), field("coordination", 20)],
+            data: data.into(),
+        };
+        rec.log(ch.particles, t, &cloud)?;
+        if let Some(sph) = ch.spheres {
+            let spheres = (0..g.len())
+                .map(|p| {
+                    let d = 2.0 * g.radius[p];
+                    SpherePrimitive {
+                        pose: Some(Pose { position: Some(Vector3 { x: g.pos[p][0], y: g.pos[p][1], z: g.pos[p][2] }), orientation: Some(identity_quat()) }),
+                        size: Some(Vector3 { x: d, y: d, z: d }),
+                        color: Some(Color { r: 0.76, g: 0.6, b: 0.42, a: 1.0 }),
+                    }
+                })
+                .collect();
+            let update = SceneUpdate {
+                deletions: vec![],
+                entities: vec![SceneEntity { timestamp: Some(timestamp(t)), frame_id: "world".into(), id: "grains".into(), spheres, ..Default::default() }],
+            };
+            rec.log(sph, t, &update)?;
+        }
+        let metrics = DemMetrics {
+            t,
+            t_norm: t / t_ref,
+            front_x: fx,
+            front_norm: sample.x_norm,
+            kinetic_energy: world.kinetic_energy(),
+            max_speed,
+            mean_coordination: world.mean_coordination(),
+            particle_steps_per_s: rate,
+        };
+        rec.log(ch.metrics, t, &metrics)?;
+        if with_state {
+            rec.log_bytes(ch.state, t, DemState::capture(world).encode())?;
+        }
+    }
+    frames.seconds += started.elapsed().as_secs_f64();
+    Ok(max_speed)
+}
+
+fn identity_quat() -> Quaternion {
+    Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 }
+}
+
+fn identity_pose() -> Pose {
+    Pose { position: Some(Vector3 { x: 0.0, y: 0.0, z: 0.0 }), orientation: Some(identity_quat()) }
+}

@@ -1,0 +1,117 @@
+//! From a checked [`Scene`] to the solver's laws, walls and time step.
+
+use schemas::contact::{contact_duration, effective_mass};
+use schemas::scene::{Face, Scene};
+
+use crate::law::{damping_ratio_for, ContactLaw};
+use crate::world::{Numerics, Wall};
+
+/// Everything the DEM derives from a scene before it has grains.
+#[derive(Debug, Clone)]
+pub struct DemSetup {
+    pub grain_law: ContactLaw,
+    pub wall_law: ContactLaw,
+    pub numerics: Numerics,
+    /// Grain–grain contact duration of the lightest pair, s (no-tension criterion).
+    pub contact_duration: f64,
+    pub steps_per_contact: f64,
+    pub domain: ([f64; 3], [f64; 3]),
+    pub gravity: [f64; 3],
+    pub max_diameter: f64,
+}
+
+/// Mass of the lightest grain any block can produce, kg.
+fn lightest_grain(scene: &Scene) -> f64 {
+    let mut m = f64::INFINITY;
+    for (b, block) in scene.spec.particles.iter().enumerate() {
+        let mut d_min = block.diameter * (1.0 - block.diameter_spread);
+        for s in &scene.explicit_spheres[b] {
+            d_min = d_min.min(s[3]);
+        }
+        m = m.min(block.density * std::f64::consts::PI / 6.0 * d_min.powi(3));
+    }
+    m
+}
+
+fn largest_diameter(scene: &Scene) -> f64 {
+    let mut d = 0.0_f64;
+    for (b, block) in scene.spec.particles.iter().enumerate() {
+        d = d.max(block.diameter * (1.0 + block.diameter_spread));
+        for s in &scene.explicit_spheres[b] {
+            d = d.max(s[3]);
+        }
+    }
+    d
+}
+
+impl DemSetup {
+    pub fn from_scene(scene: &Scene) -> Self {
+        let dem = scene.dem();
+        let zeta = damping_ratio_for(dem.restitution);
+        let kn = dem.normal_stiffness;
+        let grain_law = ContactLaw {
+            normal_stiffness: kn,
+            tangential_stiffness: dem.tangential_stiffness_ratio * kn,
+            damping_ratio: zeta,
+            friction: dem.friction,
+            rolling_friction: dem.rolling_friction,
+        };
+        let wall_law = ContactLaw {
+            friction: dem.wall_friction.unwrap_or(dem.friction),
+            rolling_friction: dem.wall_rolling_friction.unwrap_or(dem.rolling_friction),
+            ..grain_law
+        };
+        let m = lightest_grain(scene);
+        let tc = contact_duration(kn, effective_mass(m, m), zeta);
+        let dt = dem.time_step.unwrap_or(tc / dem.steps_per_contact);
+        let max_diameter = largest_diameter(scene);
+        DemSetup {
+            grain_law,
+            wall_law,
+            numerics: Numerics { dt, skin: dem.neighbour_skin * max_diameter },
+            contact_duration: tc,
+            steps_per_contact: tc / dt,
+            domain: (scene.spec.domain.min, scene.spec.domain.max),
+            gravity: scene.spec.domain.gravity,
+            max_diameter,
+        }
+    }
+
+    /// The same setup with the deposition's friction (denser packings).
+    pub fn for_deposition(&self, scene: &Scene) -> Self {
+        let dep = &scene.spec.deposition;
+        let mut s = self.clone();
+        for law in [&mut s.grain_law, &mut s.wall_law] {
+            law.friction = dep.friction;
+            law.rolling_friction = dep.rolling_friction;
+        }
+        s
+    }
+}
+
+/// Box walls, then gates (in scene order). With `gates_closed`, gates never release.
+pub fn walls(scene: &Scene, gates_closed: bool) -> Vec<Wall> {
+    let d = &scene.spec.domain;
+    let mut out = Vec::new();
+    for face in Face::ALL {
+        if !d.walls.contains(&face) {
+            continue;
+        }
+        let (axis, sign) = face.axis_and_sign();
+        let mut point = [0.0; 3];
+        point[axis] = if sign > 0.0 { d.min[axis] } else { d.max[axis] };
+        let mut normal = [0.0; 3];
+        normal[axis] = sign;
+        out.push(Wall { name: face.name().to_string(), point, normal, release_time: f64::INFINITY, active: true });
+    }
+    for (g, gate) in scene.spec.gates.iter().enumerate() {
+        out.push(Wall {
+            name: gate.name.clone(),
+            point: gate.point,
+            normal: scene.gate_normals[g],
+            release_time: if gates_closed { f64::INFINITY } else { gate.release_time },
+            active: true,
+        });
+    }
+    out
+}

@@ -1,0 +1,523 @@
+//! The DEM state and its time step.
+//!
+//! [`World::step`] is built from named stages, in this order:
+//! 1. `kick_and_drift`: v += ½Δt F/m, ω += ½Δt T/I, x += Δt v (velocity Verlet);
+//! 2. `update_neighbours`: rebuild the Verlet list when any grain has moved
+//!    more than half the skin since the last build;
+//! 3. `compute_pair_forces`: the contact law on every listed pair, in parallel,
+//!    each pair writing only its own slots;
+//! 4. `gather_and_kick`: per grain, in parallel: gravity + external load +
+//!    its pairs (in partner-index order) + walls, then v += ½Δt F/m, ω += ½Δt T/I.
+//!
+//! No stage allocates once buffers have grown (the list rebuild reuses its
+//! buffers). Every floating-point sum has a fixed order, so results are
+//! bit-identical for any thread count.
+//!
+//! Storage is struct-of-arrays in f64: positions in a 0.7 m flume with
+//! overlaps of ~1e-5 m need more than f32's 7 digits.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::law::{evaluate, ContactInput, ContactLaw, V3};
+use crate::neighbours::{rebuild, CellGrid, PairList};
+
+/// A frictional plane; grains stay on the side its normal points to.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Wall {
+    pub name: String,
+    pub point: [f64; 3],
+    /// Unit normal into the allowed half-space.
+    pub normal: [f64; 3],
+    /// Time at which the wall disappears (gates), s; infinity for fixed walls.
+    pub release_time: f64,
+    pub active: bool,
+}
+
+/// Per-grain state (struct of arrays).
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct Grains {
+    pub pos: Vec<[f64; 3]>,
+    pub vel: Vec<[f64; 3]>,
+    pub omega: Vec<[f64; 3]>,
+    /// Total force and torque of the last evaluation (Verlet needs them for the next kick).
+    pub force: Vec<[f64; 3]>,
+    pub torque: Vec<[f64; 3]>,
+    pub radius: Vec<f64>,
+    pub mass: Vec<f64>,
+}
+
+impl Grains {
+    pub fn len(&self) -> usize {
+        self.pos.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.pos.is_empty()
+    }
+    pub fn push(&mut self, pos: [f64; 3], vel: [f64; 3], radius: f64, density: f64) {
+        self.pos.push(pos);
+        self.vel.push(vel);
+        self.omega.push([0.0; 3]);
+        self.force.push([0.0; 3]);
+        self.torque.push([0.0; 3]);
+        self.radius.push(radius);
+        self.mass.push(density * 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3));
+    }
+    /// Keeps the grains for which `keep(i)` holds.
+    pub fn retain(&mut self, keep: &[bool]) {
+        fn f<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
+            let mut k = 0;
+            v.retain(|_| {
+                k += 1;
+                keep[k - 1]
+            });
+        }
+        f(&mut self.pos, keep);
+        f(&mut self.vel, keep);
+        f(&mut self.omega, keep);
+        f(&mut self.force, keep);
+        f(&mut self.torque, keep);
+        f(&mut self.radius, keep);
+        f(&mut self.mass, keep);
+    }
+}
+
+/// Contact histories in a form independent of the pair list (for states and caches).
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct Histories {
+    /// (i, j, spring) for touching grain pairs, i < j.
+    pub pairs: Vec<(u32, u32, [f64; 3])>,
+    /// (grain, wall, spring) for touching grain–wall contacts.
+    pub walls: Vec<(u32, u32, [f64; 3])>,
+}
+
+/// Numerical settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Numerics {
+    pub dt: f64,
+    /// Verlet skin, m.
+    pub skin: f64,
+}
+
+/// Scratch buffers and counters, kept apart from the physical state.
+#[derive(Debug, Default)]
+struct Scratch {
+    pairs_next: PairList,
+    pos_at_build: Vec<[f64; 3]>,
+    inv_mass: Vec<f64>,
+    inv_inertia: Vec<f64>,
+}
+
+/// Everything the DEM integrates.
+#[derive(Debug)]
+pub struct World {
+    pub grains: Grains,
+    pub walls: Vec<Wall>,
+    /// Tangential springs grain × wall, index `grain * walls.len() + wall`.
+    pub wall_springs: Vec<[f64; 3]>,
+    pub pairs: PairList,
+    /// Grain–grain contacts of each grain at the last evaluation.
+    pub coordination: Vec<u16>,
+    pub grain_law: ContactLaw,
+    pub wall_law: ContactLaw,
+    pub gravity: [f64; 3],
+    /// External force per grain (hydrodynamic load when coupled), N; held over steps.
+    pub external_force: Vec<[f64; 3]>,
+    pub external_torque: Vec<[f64; 3]>,
+    pub numerics: Numerics,
+    pub time: f64,
+    pub step_count: u64,
+    pub neighbour_builds: u64,
+    grid: CellGrid,
+    scratch: Scratch,
+}
+
+/// Number of grains per parallel task (amortises rayon's per-task cost).
+const GRAIN_CHUNK: usize = 256;
+const PAIR_CHUNK: usize = 1024;
+
+impl World {
+    pub fn new(
+        grains: Grains,
+        walls: Vec<Wall>,
+        grain_law: ContactLaw,
+        wall_law: ContactLaw,
+        gravity: [f64; 3],
+        numerics: Numerics,
+        domain: ([f64; 3], [f64; 3]),
+    ) -> Self {
+        let n = grains.len();
+        let r_max = grains.radius.iter().cloned().fold(0.0, f64::max);
+        let grid = CellGrid::new(domain.0, domain.1, (2.0 * r_max + numerics.skin).max(1e-12));
+        let nw = walls.len();
+        let mut w = World {
+            grains,
+            walls,
+            wall_springs: vec![[0.0; 3]; n * nw.max(1)],
+            pairs: PairList::default(),
+            coordination: vec![0; n],
+            grain_law,
+            wall_law,
+            gravity,
+            external_force: vec![[0.0; 3]; n],
+            external_torque: vec![[0.0; 3]; n],
+            numerics,
+            time: 0.0,
+            step_count: 0,
+            neighbour_builds: 0,
+            grid,
+            scratch: Scratch::default(),
+        };
+        w.refresh_inverse_properties();
+        w.build_neighbours();
+        w
+    }
+
+    fn refresh_inverse_properties(&mut self) {
+        let g = &self.grains;
+        self.scratch.inv_mass = g.mass.iter().map(|m| 1.0 / m).collect();
+        self.scratch.inv_inertia = g.mass.iter().zip(&g.radius).map(|(m, r)| 1.0 / (0.4 * m * r * r)).collect();
+    }
+
+    pub fn len(&self) -> usize {
+        self.grains.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.grains.is_empty()
+    }
+
+    /// Restores contact histories (from a state or cache) into the current lists.
+    pub fn set_histories(&mut self, h: &Histories) {
+        self.build_neighbours();
+        for s in self.pairs.spring.iter_mut() {
+            *s = [0.0; 3];
+        }
+        for &(i, j, s) in &h.pairs {
+            if let Some(k) = self.pairs.find(i as usize, j as usize) {
+                self.pairs.spring[k] = s;
+            }
+        }
+        self.wall_springs.iter_mut().for_each(|s| *s = [0.0; 3]);
+        let nw = self.walls.len();
+        for &(p, w, s) in &h.walls {
+            if (w as usize) < nw && (p as usize) < self.len() {
+                self.wall_springs[p as usize * nw + w as usize] = s;
+            }
+        }
+    }
+
+    /// Histories of the contacts touching now.
+    pub fn histories(&self) -> Histories {
+        let pairs = (0..self.pairs.len())
+            .filter(|&k| self.pairs.spring[k] != [0.0; 3] || self.pairs.touching[k])
+            .map(|k| (self.pairs.i[k], self.pairs.j[k], self.pairs.spring[k]))
+            .collect();
+        let nw = self.walls.len();
+        let walls = self
+            .wall_springs
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| **s != [0.0; 3])
+            .map(|(k, s)| ((k / nw.max(1)) as u32, (k % nw.max(1)) as u32, *s))
+            .collect();
+        Histories { pairs, walls }
+    }
+
+    /// Advances by one time step.
+    pub fn step(&mut self) {
+        self.release_gates();
+        let max_move = self.kick_and_drift();
+        if 2.0 * max_move > self.numerics.skin {
+            self.build_neighbours();
+        }
+        self.compute_pair_forces();
+        self.gather_and_kick();
+        self.time += self.numerics.dt;
+        self.step_count += 1;
+    }
+
+    /// Computes forces for the current positions without moving anything
+    /// (needed once before the first step, since Verlet's first kick uses them).
+    pub fn prime_forces(&mut self) {
+        self.build_neighbours();
+        let dt = self.numerics.dt;
+        self.numerics.dt = 0.0;
+        self.compute_pair_forces();
+        self.gather_forces_only();
+        self.numerics.dt = dt;
+    }
+
+    fn release_gates(&mut self) {
+        let nw = self.walls.len();
+        for (w, wall) in self.walls.iter_mut().enumerate() {
+            if wall.active && self.time >= wall.release_time {
+                wall.active = false;
+                for p in 0..self.grains.len() {
+                    self.wall_springs[p * nw + w] = [0.0; 3];
+                }
+            }
+        }
+    }
+
+    /// Stage 1. Returns the largest displacement since the last list build.
+    fn kick_and_drift(&mut self) -> f64 {
+        let dt = self.numerics.dt;
+        let half = 0.5 * dt;
+        let g = &mut self.grains;
+        let inv_m = &self.scratch.inv_mass;
+        let inv_i = &self.scratch.inv_inertia;
+        let built = &self.scratch.pos_at_build;
+        let max2 = g
+            .pos
+            .par_chunks_mut(GRAIN_CHUNK)
+            .zip(g.vel.par_chunks_mut(GRAIN_CHUNK))
+            .zip(g.omega.par_chunks_mut(GRAIN_CHUNK))
+            .enumerate()
+            .map(|(c, ((pos, vel), omega))| {
+                let base = c * GRAIN_CHUNK;
+                let mut max2 = 0.0_f64;
+                for k in 0..pos.len() {
+                    let p = base + k;
+                    let (f, t) = (&g.force[p], &g.torque[p]);
+                    for a in 0..3 {
+                        vel[k][a] += half * f[a] * inv_m[p];
+                        omega[k][a] += half * t[a] * inv_i[p];
+                        pos[k][a] += dt * vel[k][a];
+                    }
+                    let d = [pos[k][0] - built[p][0], pos[k][1] - built[p][1], pos[k][2] - built[p][2]];
+                    max2 = max2.max(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                }
+                max2
+            })
+            .reduce(|| 0.0, f64::max);
+        max2.sqrt()
+    }
+
+    /// Stage 2.
+    pub fn build_neighbours(&mut self) {
+        rebuild(
+            &mut self.grid,
+            &self.grains.pos,
+            &self.grains.radius,
+            self.numerics.skin,
+            &self.pairs,
+            &mut self.scratch.pairs_next,
+        );
+        std::mem::swap(&mut self.pairs, &mut self.scratch.pairs_next);
+        self.scratch.pos_at_build.clear();
+        self.scratch.pos_at_build.extend_from_slice(&self.grains.pos);
+        self.neighbour_builds += 1;
+    }
+
+    /// Stage 3.
+    fn compute_pair_forces(&mut self) {
+        let dt = self.numerics.dt;
+        let law = self.grain_law;
+        let g = &self.grains;
+        let inv_i = &self.scratch.inv_inertia;
+        let pl = &mut self.pairs;
+        let (pi, pj) = (&pl.i, &pl.j);
+        pl.spring
+            .par_chunks_mut(PAIR_CHUNK)
+            .zip(pl.force.par_chunks_mut(PAIR_CHUNK))
+            .zip(pl.torque_i.par_chunks_mut(PAIR_CHUNK))
+            .zip(pl.torque_j.par_chunks_mut(PAIR_CHUNK))
+            .zip(pl.touching.par_chunks_mut(PAIR_CHUNK))
+            .enumerate()
+            .for_each(|(c, ((((spring, force), ti), tj), touching))| {
+                let base = c * PAIR_CHUNK;
+                for k in 0..spring.len() {
+                    let (i, j) = (pi[base + k] as usize, pj[base + k] as usize);
+                    let d = V3::from(g.pos[j]) - V3::from(g.pos[i]);
+                    let (ri, rj) = (g.radius[i], g.radius[j]);
+                    let dist2 = d.norm_squared();
+                    let reach = ri + rj;
+                    if dist2 >= reach * reach {
+                        spring[k] = [0.0; 3];
+                        touching[k] = false;
+                        continue;
+                    }
+                    let dist = dist2.sqrt();
+                    let overlap = reach - dist;
+                    let input = ContactInput {
+                        n: d / dist,
+                        overlap,
+                        arm_i: ri - 0.5 * overlap,
+                        arm_j: rj - 0.5 * overlap,
+                        vel_i: V3::from(g.vel[i]),
+                        omega_i: V3::from(g.omega[i]),
+                        vel_j: V3::from(g.vel[j]),
+                        omega_j: V3::from(g.omega[j]),
+                        effective_mass: g.mass[i] * g.mass[j] / (g.mass[i] + g.mass[j]),
+                        inv_inertia_sum: inv_i[i] + inv_i[j],
+                        rolling_diameter: 4.0 * ri * rj / (ri + rj),
+                    };
+                    let mut s = V3::from(spring[k]);
+                    let out = evaluate(&law, &input, dt, &mut s);
+                    spring[k] = s.into();
+                    force[k] = out.force_i.into();
+                    ti[k] = out.torque_i.into();
+                    tj[k] = out.torque_j.into();
+                    touching[k] = true;
+                }
+            });
+    }
+
+    /// Stage 4 without the kick (for `prime_forces`).
+    fn gather_forces_only(&mut self) {
+        self.gather(false);
+    }
+
+    /// Stage 4.
+    fn gather_and_kick(&mut self) {
+        self.gather(true);
+    }
+
+    fn gather(&mut self, kick: bool) {
+        let dt = self.numerics.dt;
+        let half = 0.5 * dt;
+        let grav = V3::from(self.gravity);
+        let nw = self.walls.len();
+        let walls = &self.walls;
+        let wall_law = self.wall_law;
+        let pl = &self.pairs;
+        let inv_m = &self.scratch.inv_mass;
+        let inv_i = &self.scratch.inv_inertia;
+        let ext_f = &self.external_force;
+        let ext_t = &self.external_torque;
+        let g = &mut self.grains;
+        let (pos, radius, mass) = (&g.pos, &g.radius, &g.mass);
+        g.force
+            .par_chunks_mut(GRAIN_CHUNK)
+            .zip(g.torque.par_chunks_mut(GRAIN_CHUNK))
+            .zip(g.vel.par_chunks_mut(GRAIN_CHUNK))
+            .zip(g.omega.par_chunks_mut(GRAIN_CHUNK))
+            .zip(self.coordination.par_chunks_mut(GRAIN_CHUNK))
+            .zip(self.wall_springs.par_chunks_mut(GRAIN_CHUNK * nw.max(1)))
+            .enumerate()
+            .for_each(|(c, (((((force, torque), vel), omega), coord), wsprings))| {
+                let base = c * GRAIN_CHUNK;
+                for k in 0..force.len() {
+                    let p = base + k;
+                    let mut f = mass[p] * grav + V3::from(ext_f[p]);
+                    let mut t = V3::from(ext_t[p]);
+                    let mut contacts = 0u16;
+                    for &q in &pl.rev_pair[pl.rev_start[p] as usize..pl.rev_start[p + 1] as usize] {
+                        let q = q as usize;
+                        if pl.touching[q] {
+                            f -= V3::from(pl.force[q]);
+                            t += V3::from(pl.torque_j[q]);
+                            contacts += 1;
+                        }
+                    }
+                    for q in pl.row_start[p] as usize..pl.row_start[p + 1] as usize {
+                        if pl.touching[q] {
+                            f += V3::from(pl.force[q]);
+                            t += V3::from(pl.torque_i[q]);
+                            contacts += 1;
+                        }
+                    }
+                    let v = V3::from(vel[k]);
+                    let w = V3::from(omega[k]);
+                    for (wi, wall) in walls.iter().enumerate() {
+                        let spring = &mut wsprings[k * nw + wi];
+                        if !wall.active {
+                            continue;
+                        }
+                        let normal = V3::from(wall.normal);
+                        let gap = (V3::from(pos[p]) - V3::from(wall.point)).dot(&normal);
+                        let overlap = radius[p] - gap;
+                        if overlap <= 0.0 {
+                            *spring = [0.0; 3];
+                            continue;
+                        }
+                        let input = ContactInput {
+                            n: -normal,
+                            overlap,
+                            arm_i: radius[p] - overlap,
+                            arm_j: 0.0,
+                            vel_i: v,
+                            omega_i: w,
+                            vel_j: V3::zeros(),
+                            omega_j: V3::zeros(),
+                            effective_mass: mass[p],
+                            inv_inertia_sum: inv_i[p],
+                            rolling_diameter: 2.0 * radius[p],
+                        };
+                        let mut s = V3::from(*spring);
+                        let out = evaluate(&wall_law, &input, dt, &mut s);
+                        *spring = s.into();
+                        f += out.force_i;
+                        t += out.torque_i;
+                    }
+                    force[k] = f.into();
+                    torque[k] = t.into();
+                    coord[k] = contacts;
+                    if kick {
+                        for a in 0..3 {
+                            vel[k][a] += half * force[k][a] * inv_m[p];
+                            omega[k][a] += half * torque[k][a] * inv_i[p];
+                        }
+                    }
+                }
+            });
+    }
+
+    /// Translational and rotational kinetic energy, J (serial: fixed summation order).
+    pub fn kinetic_energy(&self) -> f64 {
+        let g = &self.grains;
+        (0..g.len())
+            .map(|p| {
+                let v2 = V3::from(g.vel[p]).norm_squared();
+                let w2 = V3::from(g.omega[p]).norm_squared();
+                0.5 * g.mass[p] * v2 + 0.5 * 0.4 * g.mass[p] * g.radius[p] * g.radius[p] * w2
+            })
+            .sum()
+    }
+
+    /// Gravitational potential energy relative to the origin, J.
+    pub fn potential_energy(&self) -> f64 {
+        let g = &self.grains;
+        let grav = V3::from(self.gravity);
+        (0..g.len()).map(|p| -g.mass[p] * grav.dot(&V3::from(g.pos[p]))).sum()
+    }
+
+    /// Energy stored in normal and tangential springs, J.
+    pub fn elastic_energy(&self) -> f64 {
+        let g = &self.grains;
+        let (kn, kt) = (self.grain_law.normal_stiffness, self.grain_law.tangential_stiffness);
+        let mut e = 0.0;
+        for k in 0..self.pairs.len() {
+            let (i, j) = (self.pairs.i[k] as usize, self.pairs.j[k] as usize);
+            let overlap = g.radius[i] + g.radius[j] - (V3::from(g.pos[j]) - V3::from(g.pos[i])).norm();
+            if overlap > 0.0 {
+                e += 0.5 * kn * overlap * overlap + 0.5 * kt * V3::from(self.pairs.spring[k]).norm_squared();
+            }
+        }
+        let nw = self.walls.len();
+        let (kn, kt) = (self.wall_law.normal_stiffness, self.wall_law.tangential_stiffness);
+        for p in 0..g.len() {
+            for (w, wall) in self.walls.iter().enumerate().filter(|(_, w)| w.active) {
+                let gap = (V3::from(g.pos[p]) - V3::from(wall.point)).dot(&V3::from(wall.normal));
+                let overlap = g.radius[p] - gap;
+                if overlap > 0.0 {
+                    e += 0.5 * kn * overlap * overlap + 0.5 * kt * V3::from(self.wall_springs[p * nw + w]).norm_squared();
+                }
+            }
+        }
+        e
+    }
+
+    /// Largest grain speed, m/s.
+    pub fn max_speed(&self) -> f64 {
+        self.grains.vel.iter().map(|v| V3::from(*v).norm()).fold(0.0, f64::max)
+    }
+
+    /// Mean number of grain–grain contacts per grain.
+    pub fn mean_coordination(&self) -> f64 {
+        if self.is_empty() {
+            return 0.0;
+        }
+        self.coordination.iter().map(|&c| c as f64).sum::<f64>() / self.len() as f64
+    }
+}
