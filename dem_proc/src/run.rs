@@ -192,7 +192,7 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
 
     let dt = setup.numerics.dt;
     let steps_per_frame = ((out.record_interval / dt).round() as u64).max(1);
-    let steps_per_state = ((out.state_interval.unwrap_or(out.record_interval) / dt).round() as u64).max(1);
+    let steps_per_state = ((out.state_interval.unwrap_or(5.0 * out.record_interval) / dt).round() as u64).max(1);
     let total_steps = (out.end_time / dt).ceil() as u64;
     let last_release = world.walls.iter().map(|w| w.release_time).filter(|t| t.is_finite()).fold(0.0, f64::max);
 
@@ -216,9 +216,9 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
             let elapsed = last_frame.0.elapsed().as_secs_f64();
             let rate = (s - last_frame.1) as f64 * world.len() as f64 / elapsed.max(1e-9);
             last_frame = (Instant::now(), s);
-            let max_speed = record_frame(&mut frames, &world, scene, t_ref, &mut front, rate, s % steps_per_state == 0)?;
+            record_frame(&mut frames, &world, scene, t_ref, &mut front, rate, s % steps_per_state == 0)?;
             check_blow_up(&world, &setup)?;
-            if out.stop_at_rest && world.time > last_release && max_speed < out.rest_speed {
+            if out.stop_at_rest && world.time > last_release && moving_mass_fraction(&world, out.rest_speed) <= out.rest_fraction {
                 status = "at_rest";
                 break;
             }
@@ -284,6 +284,20 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
     }
     std::fs::write(&summary_path, json).map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
     Ok(summary)
+}
+
+/// Fraction of the grain mass faster than `speed`.
+fn moving_mass_fraction(world: &World, speed: f64) -> f64 {
+    let g = &world.grains;
+    let (mut moving, mut total) = (0.0, 0.0);
+    for p in 0..g.len() {
+        let v = g.vel[p];
+        total += g.mass[p];
+        if v[0] * v[0] + v[1] * v[1] + v[2] * v[2] > speed * speed {
+            moving += g.mass[p];
+        }
+    }
+    if total > 0.0 { moving / total } else { 0.0 }
 }
 
 fn check_blow_up(world: &World, setup: &DemSetup) -> Result<(), RunError> {

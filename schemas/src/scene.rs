@@ -278,16 +278,19 @@ pub struct OutputSpec {
     pub end_time: f64,
     /// Interval between recorded frames, s.
     pub record_interval: f64,
-    /// Interval between full-precision state frames, s. Default: `record_interval`.
+    /// Interval between full-precision state frames, s. Default: 5 × `record_interval`.
     #[serde(default)]
     pub state_interval: Option<f64>,
-    /// End early once every grain is slower than `rest_speed` after all gates
-    /// are released. Default true.
+    /// End early, after all gates are released, once at most `rest_fraction`
+    /// of the grain mass moves faster than `rest_speed`. Default true.
     #[serde(default = "default_true")]
     pub stop_at_rest: bool,
     /// m/s. Default 0.005.
     #[serde(default = "default_final_rest_speed")]
     pub rest_speed: f64,
+    /// Mass fraction allowed to keep moving at rest (stray rolling grains). Default 0.001.
+    #[serde(default = "default_rest_fraction")]
+    pub rest_fraction: f64,
     /// Also record every grain as a sphere of its true radius
     /// (`foxglove.SceneUpdate`, ~0.1 kB per grain per frame). Default false.
     #[serde(default)]
@@ -296,6 +299,9 @@ pub struct OutputSpec {
 
 fn default_final_rest_speed() -> f64 {
     0.005
+}
+fn default_rest_fraction() -> f64 {
+    0.001
 }
 
 /// Measures of the collapse (paper §2).
@@ -522,6 +528,7 @@ impl Scene {
             v.positive("output.state_interval", s);
         }
         v.positive("output.rest_speed", o.rest_speed);
+        v.in_range("output.rest_fraction", o.rest_fraction, 0.0, 0.5);
 
         let a = &spec.analysis;
         v.positive("analysis.column_length", a.column_length);
@@ -579,9 +586,17 @@ impl Scene {
         (h0 / g_eff).sqrt()
     }
 
-    /// The scene as TOML, after overrides: what a run actually used.
+    /// The scene as TOML, after overrides: what a run actually used. Self-contained:
+    /// grains read from files are written inline, so the file reloads anywhere.
     pub fn to_toml(&self) -> String {
-        toml::to_string_pretty(&self.spec).expect("scene spec serialises")
+        let mut spec = self.spec.clone();
+        for (b, block) in spec.particles.iter_mut().enumerate() {
+            if let PackingSpec::Explicit { spheres, file, .. } = &mut block.packing {
+                *spheres = self.explicit_spheres[b].clone();
+                *file = None;
+            }
+        }
+        toml::to_string_pretty(&spec).expect("scene spec serialises")
     }
 }
 

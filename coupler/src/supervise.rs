@@ -1,0 +1,274 @@
+//! Starting, watching and stopping solver processes (tokio: child processes,
+//! signals, timers), then assembling `run.mcap` and `summary.json`.
+//!
+//! Children run with `--supervised` (they get SIGTERM if the coupler dies) and
+//! `--progress-json` (one JSON object per stdout line). Ctrl-C or SIGTERM is
+//! forwarded as SIGINT: the child stops at a step boundary and finalises its
+//! recording; a second Ctrl-C kills it.
+
+use std::path::{Path, PathBuf};
+use std::process::{ExitCode, Stdio};
+use std::time::{Duration, Instant};
+
+use indicatif::{ProgressBar, ProgressStyle};
+use tokio::io::{AsyncBufReadExt, BufReader};
+use tokio::process::{Child, Command};
+use tokio::signal::unix::{signal, SignalKind};
+
+use schemas::summary::RunSummary;
+use schemas::{Method, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
+
+/// The directory holding this executable; solver binaries are its siblings.
+fn sibling_binary(name: &str) -> Result<PathBuf, String> {
+    let exe = std::env::current_exe().map_err(|e| format!("cannot locate the coupler executable: {e}"))?;
+    let path = exe.with_file_name(name);
+    if path.exists() {
+        Ok(path)
+    } else {
+        Err(format!("{} not found next to {}; build it with `cargo build --release -p {name}`", path.display(), exe.display()))
+    }
+}
+
+struct Bar {
+    bar: Option<ProgressBar>,
+    phase: String,
+}
+
+impl Bar {
+    fn new(quiet: bool) -> Self {
+        let bar = (!quiet).then(|| {
+            let b = ProgressBar::new(1000);
+            b.set_style(
+                ProgressStyle::with_template("{prefix:>11} [{bar:30}] {msg} | elapsed {elapsed_precise}, ETA {eta}")
+                    .expect("valid template")
+                    .progress_chars("=> "),
+            );
+            b.enable_steady_tick(Duration::from_millis(500));
+            b
+        });
+        Self { bar, phase: String::new() }
+    }
+
+    fn println(&self, line: &str) {
+        match &self.bar {
+            Some(b) => b.println(line),
+            None => eprintln!("{line}"),
+        }
+    }
+
+    fn progress(&mut self, ev: &serde_json::Value, particles_hint: &str) {
+        let phase = ev["phase"].as_str().unwrap_or("").to_string();
+        let t = ev["t"].as_f64().unwrap_or(0.0);
+        let t_end = ev["t_end"].as_f64().unwrap_or(1.0).max(1e-12);
+        let wall = ev["wall"].as_f64().unwrap_or(0.0);
+        let msg = format!("t = {t:.4} / {t_end:.3} s{particles_hint}");
+        match &self.bar {
+            Some(b) => {
+                if phase != self.phase {
+                    b.reset();
+                    b.set_prefix(phase.clone());
+                }
+                b.set_position(((t / t_end) * 1000.0).clamp(0.0, 1000.0) as u64);
+                b.set_message(msg);
+            }
+            None => eprintln!("{phase}: {msg}, {wall:.1} s wall"),
+        }
+        self.phase = phase;
+    }
+
+    fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}
+
+/// Sends `sig` to a running child.
+fn send_signal(child: &Child, sig: i32) {
+    if let Some(pid) = child.id() {
+        // SAFETY: kill(2) with a pid we spawned and still own (not yet reaped).
+        unsafe {
+            libc::kill(pid as i32, sig);
+        }
+    }
+}
+
+pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool) -> ExitCode {
+    let started = Instant::now();
+    let method = scene.method();
+    if method != Method::DemDry {
+        eprintln!(
+            "coupler: scene {} needs the {} method ({}), which this build does not have yet: only dry DEM scenes (particles, no fluids) run so far",
+            scene.spec.scene.name,
+            method.name(),
+            if method == Method::LbmFluid { "lbm_proc" } else { "dem_proc + lbm_proc" }
+        );
+        return ExitCode::from(EXIT_BAD_SCENE as u8);
+    }
+    let dem_bin = match sibling_binary("dem_proc") {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("coupler: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    if let Err(e) = std::fs::create_dir_all(&out) {
+        eprintln!("coupler: cannot create output directory {}: {e}", out.display());
+        return ExitCode::FAILURE;
+    }
+    let scene_file = out.join("scene.toml");
+    if let Err(e) = std::fs::write(&scene_file, scene.to_toml()) {
+        eprintln!("coupler: cannot write {}: {e} (is the disk full?)", scene_file.display());
+        return ExitCode::FAILURE;
+    }
+    // Relative explicit-sphere files resolve against the original scene directory;
+    // the resolved scene embeds them instead.
+    let mut cmd = Command::new(&dem_bin);
+    cmd.arg("run").arg(&scene_file).arg("--out").arg(&out).arg("--progress-json").arg("--supervised");
+    if let Some(n) = threads {
+        cmd.arg("--threads").arg(n.to_string());
+    }
+    cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).stdin(Stdio::null()).kill_on_drop(true);
+    let mut child = match cmd.spawn() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("coupler: cannot start {}: {e}", dem_bin.display());
+            return ExitCode::FAILURE;
+        }
+    };
+    eprintln!("coupler: running {} ({}) with dem_proc, output in {}", scene.spec.scene.name, method.name(), out.display());
+
+    let mut stdout = BufReader::new(child.stdout.take().expect("piped")).lines();
+    let mut stderr = BufReader::new(child.stderr.take().expect("piped")).lines();
+    let (mut sigint, mut sigterm) = match (signal(SignalKind::interrupt()), signal(SignalKind::terminate())) {
+        (Ok(a), Ok(b)) => (a, b),
+        _ => {
+            eprintln!("coupler: cannot install signal handlers");
+            return ExitCode::FAILURE;
+        }
+    };
+    let mut bar = Bar::new(quiet);
+    let mut interrupts = 0;
+    let mut stdout_open = true;
+    let mut stderr_open = true;
+    let status = loop {
+        tokio::select! {
+            line = stdout.next_line(), if stdout_open => match line {
+                Ok(Some(l)) => {
+                    if let Ok(ev) = serde_json::from_str::<serde_json::Value>(&l) {
+                        if ev["event"] == "progress" { bar.progress(&ev, ""); }
+                    }
+                }
+                _ => stdout_open = false,
+            },
+            line = stderr.next_line(), if stderr_open => match line {
+                Ok(Some(l)) => bar.println(&l),
+                _ => stderr_open = false,
+            },
+            _ = sigint.recv() => { interrupts += 1; forward(&child, interrupts, &bar); }
+            _ = sigterm.recv() => { interrupts += 1; forward(&child, interrupts, &bar); }
+            st = child.wait() => break st,
+        }
+    };
+    // Drain what the child wrote just before exiting.
+    while stderr_open {
+        match tokio::time::timeout(Duration::from_millis(200), stderr.next_line()).await {
+            Ok(Ok(Some(l))) => bar.println(&l),
+            _ => stderr_open = false,
+        }
+    }
+    bar.finish();
+    let status = match status {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("coupler: lost track of dem_proc: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+
+    let recording = collect_recording(&out);
+    let summary = finish_summary(&out, started.elapsed().as_secs_f64(), interrupts > 0 && !status.success());
+    match status.code() {
+        Some(0) => {
+            if let Some(s) = &summary {
+                report(s, &out);
+            }
+            ExitCode::SUCCESS
+        }
+        Some(c) if c == EXIT_INTERRUPTED => {
+            eprintln!("coupler: run interrupted; the recording up to the interruption is in {}", recording.display());
+            ExitCode::from(EXIT_INTERRUPTED as u8)
+        }
+        Some(c) if c == EXIT_BAD_SCENE => {
+            eprintln!("coupler: dem_proc rejected the scene (exit status 2); see the message above");
+            ExitCode::from(EXIT_BAD_SCENE as u8)
+        }
+        code => {
+            let how = match code {
+                Some(c) => format!("exit status {c}"),
+                None => {
+                    use std::os::unix::process::ExitStatusExt;
+                    format!("signal {}", status.signal().unwrap_or(0))
+                }
+            };
+            eprintln!(
+                "coupler: dem_proc failed ({how}); see its message above. What was recorded so far is in {} (readable by streaming MCAP readers)",
+                recording.display()
+            );
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn forward(child: &Child, count: u32, bar: &Bar) {
+    if count == 1 {
+        bar.println("coupler: stopping at the next step boundary (press Ctrl-C again to kill)");
+        send_signal(child, libc::SIGINT);
+    } else {
+        bar.println("coupler: killing dem_proc");
+        send_signal(child, libc::SIGKILL);
+    }
+}
+
+/// With one solver process its recording is the run's recording.
+fn collect_recording(out: &Path) -> PathBuf {
+    let run = out.join("run.mcap");
+    let dem = out.join("dem.mcap");
+    if dem.exists() {
+        if let Err(e) = std::fs::rename(&dem, &run) {
+            eprintln!("coupler: cannot move {} to {}: {e}", dem.display(), run.display());
+            return dem;
+        }
+    }
+    run
+}
+
+fn finish_summary(out: &Path, wall_total: f64, interrupted: bool) -> Option<RunSummary> {
+    let text = std::fs::read_to_string(out.join("dem_summary.json")).ok()?;
+    let mut summary: RunSummary = serde_json::from_str(&text).ok()?;
+    summary.wall_seconds_total = Some(wall_total);
+    if interrupted {
+        summary.status = "interrupted".into();
+    }
+    let path = out.join("summary.json");
+    if let Err(e) = std::fs::write(&path, serde_json::to_string_pretty(&summary).expect("serialises")) {
+        eprintln!("coupler: cannot write {}: {e}", path.display());
+    }
+    let _ = std::fs::remove_file(out.join("dem_summary.json"));
+    Some(summary)
+}
+
+fn report(s: &RunSummary, out: &Path) {
+    let rate = s.throughput.particle_steps_per_s.map(|r| format!(", {r:.3e} particle-steps/s")).unwrap_or_default();
+    eprintln!(
+        "coupler: {} ({}) after t = {:.4} s = {:.2} t_ref, {} steps in {:.1} s{rate}",
+        s.scene,
+        s.status,
+        s.sim_time,
+        s.sim_time / s.t_ref,
+        s.steps,
+        s.wall_seconds
+    );
+    eprintln!("coupler: runout (L_f - L0)/L0 = {:.4}; initial porosity {:.4}", s.runout, s.porosity_initial);
+    eprintln!("coupler: wrote {} and {}", out.join("run.mcap").display(), out.join("summary.json").display());
+}
