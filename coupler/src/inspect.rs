@@ -9,6 +9,9 @@ use schemas::record::metadata;
 
 pub fn inspect(path: &Path) -> Result<(), String> {
     let bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    if !bytes.starts_with(mcap::MAGIC) {
+        return Err(format!("{} is not an MCAP file (no MCAP magic bytes at its start)", path.display()));
+    }
     let summary = mcap::Summary::read(&bytes).ok().flatten();
     println!("file         {} ({:.1} MB)", path.display(), bytes.len() as f64 / 1e6);
     let mut topics: BTreeMap<String, (String, String, u64)> = BTreeMap::new();

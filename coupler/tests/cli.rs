@@ -1,0 +1,45 @@
+//! The `coupler` command line without running a simulation.
+
+use std::process::Command;
+
+fn coupler() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_coupler"));
+    c.current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
+    c
+}
+
+#[test]
+fn check_reports_time_step_and_steps_per_contact() {
+    let out = coupler().args(["check", "scenes/ceccato2020/dry_h060.toml"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    // 25 steps per contact of the lightest pair, D = 2.5 mm, ρ = 2600, k_n = 2000 N/m.
+    assert!(text.contains("25.0 steps per contact"), "{text}");
+    assert!(text.contains("damping ratio 0.0417"), "{text}");
+    // 0.58 × 0.04 × 0.05 × 0.06 m³ / (π/6 · 2.5e-3³) = 8507 grains.
+    assert!(text.contains("8507 generated"), "{text}");
+}
+
+#[test]
+fn bad_scene_exits_2_naming_the_key() {
+    let out = coupler().args(["check", "scenes/ceccato2020/dry_h060.toml", "--set", "dem.friction=-0.2"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("dem.friction: must be >= 0, got -0.2"), "{err}");
+    let out = coupler().args(["run", "scenes/ceccato2020/dry_h060.toml", "--set", "output.end_time=-1"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("output.end_time"));
+    let out = coupler().args(["check", "does/not/exist.toml"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("cannot read scene file"));
+}
+
+#[test]
+fn inspect_rejects_a_file_that_is_not_mcap() {
+    let path = std::env::temp_dir().join(format!("not-mcap-{}.mcap", std::process::id()));
+    std::fs::write(&path, b"hello").unwrap();
+    let out = coupler().args(["inspect", path.to_str().unwrap()]).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not an MCAP file"), "{}", String::from_utf8_lossy(&out.stderr));
+    let _ = std::fs::remove_file(path);
+}
