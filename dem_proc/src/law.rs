@@ -79,7 +79,8 @@ pub fn evaluate(law: &ContactLaw, c: &ContactInput, dt: f64, spring: &mut V3) ->
     let approach = v_contact.dot(&n);
     let v_t = v_contact - approach * n;
 
-    let c_n = 2.0 * law.damping_ratio * (law.normal_stiffness * c.effective_mass).sqrt();
+    let sqrt_m = c.effective_mass.sqrt();
+    let c_n = 2.0 * law.damping_ratio * law.normal_stiffness.sqrt() * sqrt_m;
     let f_n = (law.normal_stiffness * c.overlap + c_n * approach).max(0.0);
 
     // Keep the spring in the tangent plane with its length (the contact frame rotated).
@@ -92,7 +93,7 @@ pub fn evaluate(law: &ContactLaw, c: &ContactInput, dt: f64, spring: &mut V3) ->
     *spring += v_t * dt;
 
     let k_t = law.tangential_stiffness;
-    let c_t = 2.0 * law.damping_ratio * (k_t * c.effective_mass).sqrt();
+    let c_t = 2.0 * law.damping_ratio * k_t.sqrt() * sqrt_m;
     let mut f_t = -k_t * *spring - c_t * v_t;
     let cap = law.friction * f_n;
     let f_t_len2 = f_t.norm_squared();

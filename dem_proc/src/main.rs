@@ -43,6 +43,30 @@ enum Command {
         #[arg(long)]
         supervised: bool,
     },
+    /// Throughput of the collapse: deposit (or load) the packing, open the
+    /// gates, time STEPS steps without recording; prints one JSON line.
+    Bench {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        #[arg(long, default_value_t = 20000)]
+        steps: u64,
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+    /// Write the scene's packing and contact law as a LAMMPS data file and
+    /// input (gran/hooke/history), for the side-by-side benchmark.
+    ExportLammps {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        /// Directory for `packing.data` and `in.collapse`.
+        #[arg(long)]
+        out: PathBuf,
+        /// Steps the LAMMPS input runs.
+        #[arg(long, default_value_t = 20000)]
+        steps: u64,
+    },
 }
 
 struct Reporter {
@@ -70,29 +94,101 @@ impl Progress for Reporter {
     }
 }
 
+fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
+    let scene = Scene::load(path, set).map_err(|e| {
+        eprintln!("dem_proc: invalid scene {}:\n{e}", path.display());
+        ExitCode::from(EXIT_BAD_SCENE as u8)
+    })?;
+    if scene.spec.particles.is_empty() {
+        eprintln!("dem_proc: the scene has no [[particles]] blocks; nothing for the DEM to do (fluid-only scenes run in lbm_proc)");
+        return Err(ExitCode::from(EXIT_BAD_SCENE as u8));
+    }
+    Ok(scene)
+}
+
+fn set_threads(threads: Option<usize>) -> Result<(), ExitCode> {
+    if let Some(n) = threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().map_err(|e| {
+            eprintln!("dem_proc: cannot set {n} threads: {e}");
+            ExitCode::FAILURE
+        })?;
+    }
+    Ok(())
+}
+
+/// The packing of a scene and the world ready to collapse.
+fn collapse_world(scene: &Scene) -> Result<dem_proc::world::World, ExitCode> {
+    use dem_proc::{packing, setup};
+    let s = setup::DemSetup::from_scene(scene);
+    let p = packing::build(scene, &s, &AtomicBool::new(false), |t, _| eprintln!("deposition: t = {t:.4} s")).map_err(|e| {
+        eprintln!("dem_proc: error: {e}");
+        ExitCode::FAILURE
+    })?;
+    let mut w = dem_proc::world::World::new(p.grains, setup::walls(scene, false), s.grain_law, s.wall_law, s.gravity, s.numerics, s.domain);
+    w.set_histories(&p.histories);
+    w.prime_forces();
+    Ok(w)
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
+        Command::Bench { scene, set, steps, threads } => {
+            let result = (|| {
+                let scene = load_scene(&scene, &set)?;
+                set_threads(threads)?;
+                let mut w = collapse_world(&scene)?;
+                let started = Instant::now();
+                for _ in 0..steps {
+                    w.step();
+                }
+                let seconds = started.elapsed().as_secs_f64();
+                println!(
+                    "{{\"particles\":{},\"steps\":{steps},\"seconds\":{seconds},\"particle_steps_per_s\":{},\"threads\":{},\"neighbour_builds\":{},\"pairs\":{},\"sim_time\":{},\"stage_seconds\":{}}}",
+                    w.len(),
+                    steps as f64 * w.len() as f64 / seconds,
+                    rayon::current_num_threads(),
+                    w.neighbour_builds,
+                    w.pairs.len(),
+                    w.time,
+                    serde_json::to_string(&w.stage_seconds).expect("serialises")
+                );
+                Ok::<(), ExitCode>(())
+            })();
+            result.err().unwrap_or(ExitCode::SUCCESS)
+        }
+        Command::ExportLammps { scene, set, out, steps } => {
+            let result = (|| {
+                let scene = load_scene(&scene, &set)?;
+                let w = collapse_world(&scene)?;
+                let setup = dem_proc::setup::DemSetup::from_scene(&scene);
+                std::fs::create_dir_all(&out).map_err(|e| {
+                    eprintln!("dem_proc: cannot create {}: {e}", out.display());
+                    ExitCode::FAILURE
+                })?;
+                let data = dem_proc::lammps::data_file(&w.grains, setup.domain);
+                let input = dem_proc::lammps::input_file(&scene, &setup, &w.grains, "packing.data", steps, "final.dump");
+                for (name, text) in [("packing.data", data), ("in.collapse", input)] {
+                    std::fs::write(out.join(name), text).map_err(|e| {
+                        eprintln!("dem_proc: cannot write {name}: {e}");
+                        ExitCode::FAILURE
+                    })?;
+                }
+                eprintln!("dem_proc: wrote {}/packing.data and in.collapse ({} grains)", out.display(), w.len());
+                Ok::<(), ExitCode>(())
+            })();
+            result.err().unwrap_or(ExitCode::SUCCESS)
+        }
         Command::Run { scene, out, set, threads, no_record, progress_json, supervised } => {
             if supervised {
                 die_with_parent();
             }
-            let scene = match Scene::load(&scene, &set) {
+            let scene = match load_scene(&scene, &set) {
                 Ok(s) => s,
-                Err(e) => {
-                    eprintln!("dem_proc: invalid scene {}:\n{e}", scene.display());
-                    return ExitCode::from(EXIT_BAD_SCENE as u8);
-                }
+                Err(code) => return code,
             };
-            if scene.spec.particles.is_empty() {
-                eprintln!("dem_proc: the scene has no [[particles]] blocks; nothing for the DEM to do (fluid-only scenes run in lbm_proc)");
-                return ExitCode::from(EXIT_BAD_SCENE as u8);
-            }
-            if let Some(n) = threads {
-                if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global() {
-                    eprintln!("dem_proc: cannot set {n} threads: {e}");
-                    return ExitCode::FAILURE;
-                }
+            if let Err(code) = set_threads(threads) {
+                return code;
             }
             let stop = Arc::new(AtomicBool::new(false));
             for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {

@@ -172,7 +172,10 @@ pub fn rebuild(grid: &mut CellGrid, pos: &[[f64; 3]], radius: &[f64], skin: f64,
     next.force.resize(m, [0.0; 3]);
     next.torque_i.resize(m, [0.0; 3]);
     next.torque_j.resize(m, [0.0; 3]);
-    next.touching.resize(m, false);
+    // Every pair counts as touching until evaluated, so the first evaluation
+    // clears the springs of pairs that are apart (the buffer holds stale flags).
+    next.touching.clear();
+    next.touching.resize(m, true);
 
     // Reverse index: counting sort of pairs by j; pairs are visited in i order,
     // so each grain's reverse list is sorted by i.

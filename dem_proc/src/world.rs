@@ -16,6 +16,8 @@
 //! Storage is struct-of-arrays in f64: positions in a 0.7 m flume with
 //! overlaps of ~1e-5 m need more than f32's 7 digits.
 
+use std::time::Instant;
+
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -128,8 +130,19 @@ pub struct World {
     pub time: f64,
     pub step_count: u64,
     pub neighbour_builds: u64,
+    /// Wall seconds spent in each stage since creation.
+    pub stage_seconds: StageSeconds,
     grid: CellGrid,
     scratch: Scratch,
+}
+
+/// Wall time per stage of [`World::step`], s.
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq)]
+pub struct StageSeconds {
+    pub kick_and_drift: f64,
+    pub update_neighbours: f64,
+    pub compute_pair_forces: f64,
+    pub gather_and_kick: f64,
 }
 
 /// Number of grains per parallel task (amortises rayon's per-task cost).
@@ -165,6 +178,7 @@ impl World {
             time: 0.0,
             step_count: 0,
             neighbour_builds: 0,
+            stage_seconds: StageSeconds::default(),
             grid,
             scratch: Scratch::default(),
         };
@@ -225,13 +239,23 @@ impl World {
 
     /// Advances by one time step.
     pub fn step(&mut self) {
+        let t0 = Instant::now();
         self.release_gates();
         let max_move = self.kick_and_drift();
+        let t1 = Instant::now();
         if 2.0 * max_move > self.numerics.skin {
             self.build_neighbours();
         }
+        let t2 = Instant::now();
         self.compute_pair_forces();
+        let t3 = Instant::now();
         self.gather_and_kick();
+        let t4 = Instant::now();
+        let st = &mut self.stage_seconds;
+        st.kick_and_drift += (t1 - t0).as_secs_f64();
+        st.update_neighbours += (t2 - t1).as_secs_f64();
+        st.compute_pair_forces += (t3 - t2).as_secs_f64();
+        st.gather_and_kick += (t4 - t3).as_secs_f64();
         self.time += self.numerics.dt;
         self.step_count += 1;
     }
@@ -333,14 +357,17 @@ impl World {
                     let dist2 = d.norm_squared();
                     let reach = ri + rj;
                     if dist2 >= reach * reach {
-                        spring[k] = [0.0; 3];
-                        touching[k] = false;
+                        // Writes only when needed: most candidates stay apart for many steps.
+                        if touching[k] {
+                            spring[k] = [0.0; 3];
+                            touching[k] = false;
+                        }
                         continue;
                     }
                     let dist = dist2.sqrt();
                     let overlap = reach - dist;
                     let input = ContactInput {
-                        n: d / dist,
+                        n: d * (1.0 / dist),
                         overlap,
                         arm_i: ri - 0.5 * overlap,
                         arm_j: rj - 0.5 * overlap,
@@ -428,7 +455,9 @@ impl World {
                         let gap = (V3::from(pos[p]) - V3::from(wall.point)).dot(&normal);
                         let overlap = radius[p] - gap;
                         if overlap <= 0.0 {
-                            *spring = [0.0; 3];
+                            if *spring != [0.0; 3] {
+                                *spring = [0.0; 3];
+                            }
                             continue;
                         }
                         let input = ContactInput {
