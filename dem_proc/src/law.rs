@@ -15,9 +15,7 @@
 //!   never reverse it. D_eff = 2 D_i D_j/(D_i + D_j) between grains (D for
 //!   equal grains) and D_i against a wall. Twisting is not resisted.
 
-use nalgebra::Vector3;
-
-pub type V3 = Vector3<f64>;
+use crate::vec3::{add, cross, dot, neg, norm2, scale, sub, Vec3};
 
 /// Material constants of one kind of contact (grain–grain or grain–wall).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -38,16 +36,16 @@ pub struct ContactLaw {
 /// `n` points from i towards j (or towards the wall).
 #[derive(Debug, Clone, Copy)]
 pub struct ContactInput {
-    pub n: V3,
+    pub n: Vec3,
     /// Overlap δ > 0, m.
     pub overlap: f64,
     /// Distance from each centre to the contact point, m (0 for j = wall).
     pub arm_i: f64,
     pub arm_j: f64,
-    pub vel_i: V3,
-    pub omega_i: V3,
-    pub vel_j: V3,
-    pub omega_j: V3,
+    pub vel_i: Vec3,
+    pub omega_i: Vec3,
+    pub vel_j: Vec3,
+    pub omega_j: Vec3,
     /// m* = m_i m_j/(m_i + m_j), kg.
     pub effective_mass: f64,
     /// 1/I_i + 1/I_j, 1/(kg m²).
@@ -60,10 +58,10 @@ pub struct ContactInput {
 #[derive(Debug, Clone, Copy)]
 pub struct ContactOutput {
     /// Force on i (j receives the opposite), N.
-    pub force_i: V3,
+    pub force_i: Vec3,
     /// Torques on i and j, N m.
-    pub torque_i: V3,
-    pub torque_j: V3,
+    pub torque_i: Vec3,
+    pub torque_j: Vec3,
 }
 
 /// Evaluates the contact and advances its tangential spring `spring` by `dt`.
@@ -71,54 +69,54 @@ pub struct ContactOutput {
 /// Pre: `overlap > 0`, `n` unit. Post: `|F_t| ≤ μ F_n`, `F_n ≥ 0`; the spring
 /// lies in the tangent plane.
 #[inline(always)]
-pub fn evaluate(law: &ContactLaw, c: &ContactInput, dt: f64, spring: &mut V3) -> ContactOutput {
+pub fn evaluate(law: &ContactLaw, c: &ContactInput, dt: f64, spring: &mut Vec3) -> ContactOutput {
     let n = c.n;
-    let ri = c.arm_i * n;
-    let rj = -c.arm_j * n;
-    let v_contact = (c.vel_i + c.omega_i.cross(&ri)) - (c.vel_j + c.omega_j.cross(&rj));
-    let approach = v_contact.dot(&n);
-    let v_t = v_contact - approach * n;
+    let ri = scale(n, c.arm_i);
+    let rj = scale(n, -c.arm_j);
+    let v_contact = sub(add(c.vel_i, cross(c.omega_i, ri)), add(c.vel_j, cross(c.omega_j, rj)));
+    let approach = dot(v_contact, n);
+    let v_t = sub(v_contact, scale(n, approach));
 
     let sqrt_m = c.effective_mass.sqrt();
     let c_n = 2.0 * law.damping_ratio * law.normal_stiffness.sqrt() * sqrt_m;
     let f_n = (law.normal_stiffness * c.overlap + c_n * approach).max(0.0);
 
     // Keep the spring in the tangent plane with its length (the contact frame rotated).
-    let old_len2 = spring.norm_squared();
+    let old_len2 = norm2(*spring);
     if old_len2 > 0.0 {
-        let projected = *spring - spring.dot(&n) * n;
-        let new_len2 = projected.norm_squared();
-        *spring = if new_len2 > 0.0 { projected * (old_len2 / new_len2).sqrt() } else { V3::zeros() };
+        let projected = sub(*spring, scale(n, dot(*spring, n)));
+        let new_len2 = norm2(projected);
+        *spring = if new_len2 > 0.0 { scale(projected, (old_len2 / new_len2).sqrt()) } else { [0.0; 3] };
     }
-    *spring += v_t * dt;
+    *spring = add(*spring, scale(v_t, dt));
 
     let k_t = law.tangential_stiffness;
     let c_t = 2.0 * law.damping_ratio * k_t.sqrt() * sqrt_m;
-    let mut f_t = -k_t * *spring - c_t * v_t;
+    let mut f_t = sub(scale(*spring, -k_t), scale(v_t, c_t));
     let cap = law.friction * f_n;
-    let f_t_len2 = f_t.norm_squared();
+    let f_t_len2 = norm2(f_t);
     if f_t_len2 > cap * cap {
-        f_t *= cap / f_t_len2.sqrt();
+        f_t = scale(f_t, cap / f_t_len2.sqrt());
         if k_t > 0.0 {
-            *spring = -(f_t + c_t * v_t) / k_t;
+            *spring = scale(add(f_t, scale(v_t, c_t)), -1.0 / k_t);
         }
     }
 
-    let force_i = -f_n * n + f_t;
-    let mut torque_i = ri.cross(&f_t);
-    let mut torque_j = rj.cross(&-f_t);
+    let force_i = add(scale(n, -f_n), f_t);
+    let mut torque_i = cross(ri, f_t);
+    let mut torque_j = cross(rj, neg(f_t));
 
     if law.rolling_friction > 0.0 && f_n > 0.0 {
-        let w = c.omega_i - c.omega_j;
-        let w_roll = w - w.dot(&n) * n;
-        let w_len = w_roll.norm();
+        let w = sub(c.omega_i, c.omega_j);
+        let w_roll = sub(w, scale(n, dot(w, n)));
+        let w_len = norm2(w_roll).sqrt();
         if w_len > 0.0 {
             let m_full = law.rolling_friction * f_n * 0.5 * c.rolling_diameter;
             let m_stop = w_len / (c.inv_inertia_sum * dt);
             let m = m_full.min(m_stop);
-            let t = (m / w_len) * w_roll;
-            torque_i -= t;
-            torque_j += t;
+            let t = scale(w_roll, m / w_len);
+            torque_i = sub(torque_i, t);
+            torque_j = add(torque_j, t);
         }
     }
 

@@ -14,4 +14,5 @@ pub mod packing;
 pub mod rng;
 pub mod run;
 pub mod setup;
+pub mod vec3;
 pub mod world;

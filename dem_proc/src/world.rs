@@ -21,7 +21,8 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::law::{evaluate, ContactInput, ContactLaw, V3};
+use crate::law::{evaluate, ContactInput, ContactLaw};
+use crate::vec3::{add, dot, neg, norm2, scale, sub};
 use crate::neighbours::{rebuild, CellGrid, PairList};
 
 /// A frictional plane; grains stay on the side its normal points to.
@@ -352,9 +353,9 @@ impl World {
                 let base = c * PAIR_CHUNK;
                 for k in 0..spring.len() {
                     let (i, j) = (pi[base + k] as usize, pj[base + k] as usize);
-                    let d = V3::from(g.pos[j]) - V3::from(g.pos[i]);
+                    let d = sub(g.pos[j], g.pos[i]);
                     let (ri, rj) = (g.radius[i], g.radius[j]);
-                    let dist2 = d.norm_squared();
+                    let dist2 = norm2(d);
                     let reach = ri + rj;
                     if dist2 >= reach * reach {
                         // Writes only when needed: most candidates stay apart for many steps.
@@ -366,25 +367,24 @@ impl World {
                     }
                     let dist = dist2.sqrt();
                     let overlap = reach - dist;
+                    let (mi, mj) = (g.mass[i], g.mass[j]);
                     let input = ContactInput {
-                        n: d * (1.0 / dist),
+                        n: scale(d, 1.0 / dist),
                         overlap,
                         arm_i: ri - 0.5 * overlap,
                         arm_j: rj - 0.5 * overlap,
-                        vel_i: V3::from(g.vel[i]),
-                        omega_i: V3::from(g.omega[i]),
-                        vel_j: V3::from(g.vel[j]),
-                        omega_j: V3::from(g.omega[j]),
-                        effective_mass: g.mass[i] * g.mass[j] / (g.mass[i] + g.mass[j]),
+                        vel_i: g.vel[i],
+                        omega_i: g.omega[i],
+                        vel_j: g.vel[j],
+                        omega_j: g.omega[j],
+                        effective_mass: mi * mj / (mi + mj),
                         inv_inertia_sum: inv_i[i] + inv_i[j],
                         rolling_diameter: 4.0 * ri * rj / (ri + rj),
                     };
-                    let mut s = V3::from(spring[k]);
-                    let out = evaluate(&law, &input, dt, &mut s);
-                    spring[k] = s.into();
-                    force[k] = out.force_i.into();
-                    ti[k] = out.torque_i.into();
-                    tj[k] = out.torque_j.into();
+                    let out = evaluate(&law, &input, dt, &mut spring[k]);
+                    force[k] = out.force_i;
+                    ti[k] = out.torque_i;
+                    tj[k] = out.torque_j;
                     touching[k] = true;
                 }
             });
@@ -403,7 +403,7 @@ impl World {
     fn gather(&mut self, kick: bool) {
         let dt = self.numerics.dt;
         let half = 0.5 * dt;
-        let grav = V3::from(self.gravity);
+        let grav = self.gravity;
         let nw = self.walls.len();
         let walls = &self.walls;
         let wall_law = self.wall_law;
@@ -426,34 +426,32 @@ impl World {
                 let base = c * GRAIN_CHUNK;
                 for k in 0..force.len() {
                     let p = base + k;
-                    let mut f = mass[p] * grav + V3::from(ext_f[p]);
-                    let mut t = V3::from(ext_t[p]);
+                    let mut f = add(scale(grav, mass[p]), ext_f[p]);
+                    let mut t = ext_t[p];
                     let mut contacts = 0u16;
                     for &q in &pl.rev_pair[pl.rev_start[p] as usize..pl.rev_start[p + 1] as usize] {
                         let q = q as usize;
                         if pl.touching[q] {
-                            f -= V3::from(pl.force[q]);
-                            t += V3::from(pl.torque_j[q]);
+                            f = sub(f, pl.force[q]);
+                            t = add(t, pl.torque_j[q]);
                             contacts += 1;
                         }
                     }
-                    for q in pl.row_start[p] as usize..pl.row_start[p + 1] as usize {
-                        if pl.touching[q] {
-                            f += V3::from(pl.force[q]);
-                            t += V3::from(pl.torque_i[q]);
+                    let row = pl.row_start[p] as usize..pl.row_start[p + 1] as usize;
+                    for ((&touching, force), torque) in pl.touching[row.clone()].iter().zip(&pl.force[row.clone()]).zip(&pl.torque_i[row]) {
+                        if touching {
+                            f = add(f, *force);
+                            t = add(t, *torque);
                             contacts += 1;
                         }
                     }
-                    let v = V3::from(vel[k]);
-                    let w = V3::from(omega[k]);
-                    for (wi, wall) in walls.iter().enumerate() {
-                        let spring = &mut wsprings[k * nw + wi];
+                    let (v, w, x, r) = (vel[k], omega[k], pos[p], radius[p]);
+                    for (wall, spring) in walls.iter().zip(&mut wsprings[k * nw..(k + 1) * nw]) {
                         if !wall.active {
                             continue;
                         }
-                        let normal = V3::from(wall.normal);
-                        let gap = (V3::from(pos[p]) - V3::from(wall.point)).dot(&normal);
-                        let overlap = radius[p] - gap;
+                        let gap = dot(sub(x, wall.point), wall.normal);
+                        let overlap = r - gap;
                         if overlap <= 0.0 {
                             if *spring != [0.0; 3] {
                                 *spring = [0.0; 3];
@@ -461,26 +459,24 @@ impl World {
                             continue;
                         }
                         let input = ContactInput {
-                            n: -normal,
+                            n: neg(wall.normal),
                             overlap,
-                            arm_i: radius[p] - overlap,
+                            arm_i: r - overlap,
                             arm_j: 0.0,
                             vel_i: v,
                             omega_i: w,
-                            vel_j: V3::zeros(),
-                            omega_j: V3::zeros(),
+                            vel_j: [0.0; 3],
+                            omega_j: [0.0; 3],
                             effective_mass: mass[p],
                             inv_inertia_sum: inv_i[p],
-                            rolling_diameter: 2.0 * radius[p],
+                            rolling_diameter: 2.0 * r,
                         };
-                        let mut s = V3::from(*spring);
-                        let out = evaluate(&wall_law, &input, dt, &mut s);
-                        *spring = s.into();
-                        f += out.force_i;
-                        t += out.torque_i;
+                        let out = evaluate(&wall_law, &input, dt, spring);
+                        f = add(f, out.force_i);
+                        t = add(t, out.torque_i);
                     }
-                    force[k] = f.into();
-                    torque[k] = t.into();
+                    force[k] = f;
+                    torque[k] = t;
                     coord[k] = contacts;
                     if kick {
                         for a in 0..3 {
@@ -497,8 +493,8 @@ impl World {
         let g = &self.grains;
         (0..g.len())
             .map(|p| {
-                let v2 = V3::from(g.vel[p]).norm_squared();
-                let w2 = V3::from(g.omega[p]).norm_squared();
+                let v2 = norm2(g.vel[p]);
+                let w2 = norm2(g.omega[p]);
                 0.5 * g.mass[p] * v2 + 0.5 * 0.4 * g.mass[p] * g.radius[p] * g.radius[p] * w2
             })
             .sum()
@@ -507,8 +503,7 @@ impl World {
     /// Gravitational potential energy relative to the origin, J.
     pub fn potential_energy(&self) -> f64 {
         let g = &self.grains;
-        let grav = V3::from(self.gravity);
-        (0..g.len()).map(|p| -g.mass[p] * grav.dot(&V3::from(g.pos[p]))).sum()
+        (0..g.len()).map(|p| -g.mass[p] * dot(self.gravity, g.pos[p])).sum()
     }
 
     /// Energy stored in normal and tangential springs, J.
@@ -518,19 +513,19 @@ impl World {
         let mut e = 0.0;
         for k in 0..self.pairs.len() {
             let (i, j) = (self.pairs.i[k] as usize, self.pairs.j[k] as usize);
-            let overlap = g.radius[i] + g.radius[j] - (V3::from(g.pos[j]) - V3::from(g.pos[i])).norm();
+            let overlap = g.radius[i] + g.radius[j] - norm2(sub(g.pos[j], g.pos[i])).sqrt();
             if overlap > 0.0 {
-                e += 0.5 * kn * overlap * overlap + 0.5 * kt * V3::from(self.pairs.spring[k]).norm_squared();
+                e += 0.5 * kn * overlap * overlap + 0.5 * kt * norm2(self.pairs.spring[k]);
             }
         }
         let nw = self.walls.len();
         let (kn, kt) = (self.wall_law.normal_stiffness, self.wall_law.tangential_stiffness);
         for p in 0..g.len() {
             for (w, wall) in self.walls.iter().enumerate().filter(|(_, w)| w.active) {
-                let gap = (V3::from(g.pos[p]) - V3::from(wall.point)).dot(&V3::from(wall.normal));
+                let gap = dot(sub(g.pos[p], wall.point), wall.normal);
                 let overlap = g.radius[p] - gap;
                 if overlap > 0.0 {
-                    e += 0.5 * kn * overlap * overlap + 0.5 * kt * V3::from(self.wall_springs[p * nw + w]).norm_squared();
+                    e += 0.5 * kn * overlap * overlap + 0.5 * kt * norm2(self.wall_springs[p * nw + w]);
                 }
             }
         }
@@ -539,7 +534,7 @@ impl World {
 
     /// Largest grain speed, m/s.
     pub fn max_speed(&self) -> f64 {
-        self.grains.vel.iter().map(|v| V3::from(*v).norm()).fold(0.0, f64::max)
+        self.grains.vel.iter().map(|v| norm2(*v).sqrt()).fold(0.0, f64::max)
     }
 
     /// Mean number of grain–grain contacts per grain.
