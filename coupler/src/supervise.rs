@@ -15,7 +15,6 @@ use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 use tokio::signal::unix::{signal, SignalKind};
 
-use schemas::summary::RunSummary;
 use schemas::{Method, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
 
 /// The directory holding this executable; solver binaries are its siblings.
@@ -188,20 +187,35 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
 
     let recording = collect_recording(&out);
     let summary = finish_summary(&out, started.elapsed().as_secs_f64(), interrupts > 0 && !status.success());
+    let recorded = recording.exists();
     match status.code() {
         Some(0) => {
-            if let Some(s) = &summary {
-                report(s, &out);
+            match &summary {
+                Some(s) => {
+                    report(s, &out);
+                    ExitCode::SUCCESS
+                }
+                None => {
+                    eprintln!("coupler: dem_proc finished but left no readable summary in {}", out.display());
+                    ExitCode::FAILURE
+                }
             }
-            ExitCode::SUCCESS
         }
         Some(c) if c == EXIT_INTERRUPTED => {
-            eprintln!("coupler: run interrupted; the recording up to the interruption is in {}", recording.display());
+            if recorded {
+                eprintln!("coupler: run interrupted; the recording up to the interruption is in {}", recording.display());
+            } else {
+                eprintln!("coupler: run interrupted before the collapse started; nothing was recorded");
+            }
             ExitCode::from(EXIT_INTERRUPTED as u8)
         }
         Some(c) if c == EXIT_BAD_SCENE => {
             eprintln!("coupler: dem_proc rejected the scene (exit status 2); see the message above");
             ExitCode::from(EXIT_BAD_SCENE as u8)
+        }
+        _ if interrupts > 1 => {
+            eprintln!("coupler: dem_proc killed after a second interrupt; {} may lack its summary section (streaming MCAP readers still read it)", recording.display());
+            ExitCode::from(EXIT_INTERRUPTED as u8)
         }
         code => {
             let how = match code {
@@ -243,32 +257,44 @@ fn collect_recording(out: &Path) -> PathBuf {
     run
 }
 
-fn finish_summary(out: &Path, wall_total: f64, interrupted: bool) -> Option<RunSummary> {
-    let text = std::fs::read_to_string(out.join("dem_summary.json")).ok()?;
-    let mut summary: RunSummary = serde_json::from_str(&text).ok()?;
-    summary.wall_seconds_total = Some(wall_total);
+/// Adds the coupler's fields to the solver's summary and writes `summary.json`.
+/// Kept as JSON values: NaN measures arrive as null and stay null.
+fn finish_summary(out: &Path, wall_total: f64, interrupted: bool) -> Option<serde_json::Value> {
+    let solver_summary = out.join("dem_summary.json");
+    let text = std::fs::read_to_string(&solver_summary).ok()?;
+    let mut summary: serde_json::Value = match serde_json::from_str(&text) {
+        Ok(v) => v,
+        Err(e) => {
+            eprintln!("coupler: {} is not valid JSON: {e}", solver_summary.display());
+            return None;
+        }
+    };
+    summary["wall_seconds_total"] = wall_total.into();
     if interrupted {
-        summary.status = "interrupted".into();
+        summary["status"] = "interrupted".into();
     }
     let path = out.join("summary.json");
     if let Err(e) = std::fs::write(&path, serde_json::to_string_pretty(&summary).expect("serialises")) {
-        eprintln!("coupler: cannot write {}: {e}", path.display());
+        eprintln!("coupler: cannot write {}: {e} (is the disk full?)", path.display());
+        return None;
     }
-    let _ = std::fs::remove_file(out.join("dem_summary.json"));
+    let _ = std::fs::remove_file(solver_summary);
     Some(summary)
 }
 
-fn report(s: &RunSummary, out: &Path) {
-    let rate = s.throughput.particle_steps_per_s.map(|r| format!(", {r:.3e} particle-steps/s")).unwrap_or_default();
+fn report(s: &serde_json::Value, out: &Path) {
+    let num = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+    let rate = num(&s["throughput"]["particle_steps_per_s"]);
     eprintln!(
-        "coupler: {} ({}) after t = {:.4} s = {:.2} t_ref, {} steps in {:.1} s{rate}",
-        s.scene,
-        s.status,
-        s.sim_time,
-        s.sim_time / s.t_ref,
-        s.steps,
-        s.wall_seconds
+        "coupler: {} ({}) after t = {:.4} s = {:.2} t_ref, {} steps in {:.1} s, {:.3e} particle-steps/s",
+        s["scene"].as_str().unwrap_or("?"),
+        s["status"].as_str().unwrap_or("?"),
+        num(&s["sim_time"]),
+        num(&s["sim_time"]) / num(&s["t_ref"]),
+        s["steps"],
+        num(&s["wall_seconds"]),
+        rate
     );
-    eprintln!("coupler: runout (L_f - L0)/L0 = {:.4}; initial porosity {:.4}", s.runout, s.porosity_initial);
+    eprintln!("coupler: runout (L_f - L0)/L0 = {:.4}; initial porosity {:.4}", num(&s["runout"]), num(&s["porosity_initial"]));
     eprintln!("coupler: wrote {} and {}", out.join("run.mcap").display(), out.join("summary.json").display());
 }

@@ -29,7 +29,7 @@ pub const STATE_VERSION: u32 = 1;
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct DemState {
     pub version: u32,
-    /// Simulated time since the gate opened, s.
+    /// Simulated time since the start of the run, s.
     pub time: f64,
     pub step: u64,
     pub grains: Grains,
@@ -125,6 +125,9 @@ impl Frames {
     }
 }
 
+/// Consecutive recorded frames at rest that end a run early.
+pub const REST_FRAMES: u32 = 3;
+
 const LOG_INFO: i32 = 2;
 const LOG_WARN: i32 = 3;
 
@@ -201,6 +204,11 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
     let mut last_frame = (Instant::now(), 0u64);
     let mut last_progress = Instant::now();
     let mut status = "completed";
+    let mut last_recorded_step = 0u64;
+    let mut last_state_step = 0u64;
+    // Frames in a row that met the rest criterion: one is not enough, a
+    // bouncing grain is momentarily still at the top of each bounce.
+    let mut frames_at_rest = 0;
     frames.log(0.0, LOG_INFO, &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk))?;
     record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
 
@@ -216,11 +224,21 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
             let elapsed = last_frame.0.elapsed().as_secs_f64();
             let rate = (s - last_frame.1) as f64 * world.len() as f64 / elapsed.max(1e-9);
             last_frame = (Instant::now(), s);
-            record_frame(&mut frames, &world, scene, t_ref, &mut front, rate, s % steps_per_state == 0)?;
+            let with_state = s % steps_per_state == 0;
+            record_frame(&mut frames, &world, scene, t_ref, &mut front, rate, with_state)?;
+            last_recorded_step = s;
+            if with_state {
+                last_state_step = s;
+            }
             check_blow_up(&world, &setup)?;
             if out.stop_at_rest && world.time > last_release && moving_mass_fraction(&world, out.rest_speed) <= out.rest_fraction {
-                status = "at_rest";
-                break;
+                frames_at_rest += 1;
+                if frames_at_rest >= REST_FRAMES {
+                    status = "at_rest";
+                    break;
+                }
+            } else {
+                frames_at_rest = 0;
             }
         }
         if last_progress.elapsed().as_secs_f64() > 0.5 {
@@ -230,8 +248,13 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
     }
     let wall = started.elapsed().as_secs_f64();
     progress.collapse(world.time, out.end_time, world.step_count);
-    if world.step_count % steps_per_frame != 0 || status != "completed" {
+    // The run always ends with a recorded frame and a full state.
+    if last_recorded_step != world.step_count {
         record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
+    } else if last_state_step != world.step_count {
+        if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
+            rec.log_bytes(ch.state, world.time, DemState::capture(&world).encode())?;
+        }
     }
 
     let final_front = front.last().map(|f: &FrontSample| f.x).unwrap_or(f64::NAN);

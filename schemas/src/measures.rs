@@ -6,13 +6,13 @@ use serde::{Deserialize, Serialize};
 /// One sample of a front: time, normalised time, position, normalised runout.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
 pub struct FrontSample {
-    /// Simulated time since the gate opened, s.
+    /// Simulated time since the start of the run (gates open at their `release_time`), s.
     pub t: f64,
     /// t / t_ref.
     pub t_norm: f64,
-    /// X_f, m from the back wall (domain x_min).
+    /// X_f, the x coordinate of the front, m.
     pub x: f64,
-    /// (X_f − L0) / L0.
+    /// (X_f − x_min − L0) / L0, with x_min the domain's lower x (the back wall).
     pub x_norm: f64,
 }
 

@@ -3,7 +3,7 @@
 /// `/dem/metrics`, one per recorded frame.
 #[derive(Debug, Clone, Copy, Default, foxglove::Encode)]
 pub struct DemMetrics {
-    /// Simulated time since the gate opened, s.
+    /// Simulated time since the start of the run, s.
     pub t: f64,
     /// t / t_ref.
     pub t_norm: f64,

@@ -30,7 +30,6 @@ pub mod topics {
     pub const DEM_SPHERES: &str = "/dem/spheres";
     pub const DEM_METRICS: &str = "/dem/metrics";
     pub const DEM_STATE: &str = "/dem/state";
-    pub const SCENE_GEOMETRY: &str = "/scene/geometry";
     pub const LOG: &str = "/log";
 }
 

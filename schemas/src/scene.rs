@@ -14,10 +14,6 @@ use serde::{Deserialize, Serialize};
 use crate::error::SceneError;
 use crate::overrides::apply_override;
 
-/// Standard gravity, m/s², used only for the default of `domain.gravity`
-/// in examples; scenes always state their gravity.
-pub const STANDARD_GRAVITY: f64 = 9.81;
-
 // ---------------------------------------------------------------------------
 // Raw file types
 // ---------------------------------------------------------------------------
@@ -282,7 +278,8 @@ pub struct OutputSpec {
     #[serde(default)]
     pub state_interval: Option<f64>,
     /// End early, after all gates are released, once at most `rest_fraction`
-    /// of the grain mass moves faster than `rest_speed`. Default true.
+    /// of the grain mass moves faster than `rest_speed` on three recorded
+    /// frames in a row. Default true.
     #[serde(default = "default_true")]
     pub stop_at_rest: bool,
     /// m/s. Default 0.005.
@@ -500,6 +497,13 @@ impl Scene {
             v.positive("dem.normal_stiffness", dem.normal_stiffness);
             v.in_range("dem.tangential_stiffness_ratio", dem.tangential_stiffness_ratio, 0.0, 1.0);
             v.half_open("dem.restitution", dem.restitution, 0.0, 1.0);
+            let e_min = crate::contact::min_restitution_no_tension();
+            if dem.restitution > 0.0 && dem.restitution < e_min {
+                v.fail(
+                    "dem.restitution",
+                    format!("a linear spring-dashpot that never pulls cannot rebound slower than e = {e_min:.3} (at critical damping), got {}", dem.restitution),
+                );
+            }
             v.at_least("dem.friction", dem.friction, 0.0);
             v.at_least("dem.rolling_friction", dem.rolling_friction, 0.0);
             if let Some(x) = dem.wall_friction {

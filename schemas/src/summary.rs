@@ -11,13 +11,13 @@ pub struct RunSummary {
     pub scene: String,
     /// `dem`, `lbm`, `dem_lbm`, `mpm`.
     pub method: String,
-    /// `completed`, `at_rest` (stopped early, everything at rest), `interrupted`, `failed`.
+    /// `completed` (end time reached), `at_rest` (stopped early, at rest), `interrupted`.
     pub status: String,
-    /// Simulated time reached after the gate opened, s.
+    /// Simulated time reached since the start of the run, s.
     pub sim_time: f64,
     /// Wall time of the solver loop (deposition excluded), s.
     pub wall_seconds: f64,
-    /// Solver steps taken after the gate opened.
+    /// Solver steps taken since the start of the run.
     pub steps: u64,
     pub throughput: Throughput,
     /// Reference time used to normalise t, s.
@@ -28,7 +28,9 @@ pub struct RunSummary {
     pub runout: f64,
     /// Final deposit profile: [x, height] pairs, m.
     pub deposit: Vec<[f64; 2]>,
-    /// Bulk porosity of the initial column, 1 − V_solid/(L0 W H0).
+    /// Bulk porosity of the initial column: 1 − V_solid / V_region of the first
+    /// deposit block (its region is the column L0 × W × H0 in the lab scenes);
+    /// null for explicit packings.
     pub porosity_initial: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dem: Option<DemDetails>,
@@ -56,7 +58,8 @@ pub struct DemDetails {
     /// Grain–grain contact duration, s, and steps per contact.
     pub contact_duration: f64,
     pub steps_per_contact: f64,
-    /// Porosity in the core of the column (one diameter away from walls and top).
+    /// Porosity of the column core: one diameter from the side walls and the
+    /// floor, two diameters below the region top.
     pub porosity_core: f64,
     /// Height of the initial column (highest grain top), m.
     pub initial_height: f64,

@@ -189,3 +189,29 @@ fn ctrl_c_stops_cleanly() {
 
 #[allow(dead_code)]
 fn _paths(_: &Path) {}
+
+/// An explicit packing (no deposition, porosity undefined: null in the
+/// summary): a sphere dropped from 10 mm. A bouncing ball with restitution e
+/// dropped from h comes to rest after t = √(2h/g)·(1 + e)/(1 − e) = 0.705 s;
+/// the run stops at rest shortly after, never before.
+#[test]
+fn bouncing_sphere_comes_to_rest_on_time() {
+    let out = scratch_dir("bouncing_sphere");
+    let status = Command::new(binary("coupler"))
+        .current_dir(repo_root())
+        .args(["run", "scenes/validation/bouncing_sphere.toml", "--quiet", "--out"])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert!(s["porosity_initial"].is_null(), "{}", s["porosity_initial"]);
+    assert_eq!(s["status"], "at_rest");
+    let (h, g, e) = (0.01f64, 9.81f64, 0.88f64);
+    let t_rest = (2.0 * h / g).sqrt() * (1.0 + e) / (1.0 - e);
+    let t = s["sim_time"].as_f64().unwrap();
+    assert!(t > 0.95 * t_rest && t < t_rest + 0.1, "at rest at {t} s, bounce sequence ends at {t_rest} s");
+    // Resting on the floor: the deposit is one grain high.
+    let top = s["deposit"].as_array().unwrap().iter().map(|p| p[1].as_f64().unwrap()).fold(0.0, f64::max);
+    assert!((top - 2.5e-3).abs() < 1e-5, "{top}");
+}
