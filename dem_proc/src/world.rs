@@ -107,6 +107,8 @@ pub struct Numerics {
 struct Scratch {
     pairs_next: PairList,
     pos_at_build: Vec<[f64; 3]>,
+    /// Per grain, a bit for each wall within reach until the next list build.
+    near_walls: Vec<u32>,
     inv_mass: Vec<f64>,
     inv_inertia: Vec<f64>,
 }
@@ -146,6 +148,9 @@ pub struct StageSeconds {
     pub gather_and_kick: f64,
 }
 
+/// Walls (box faces and gates) a world can hold: one bit each in a `u32`.
+pub const MAX_WALLS: usize = 32;
+
 /// Number of grains per parallel task (amortises rayon's per-task cost).
 const GRAIN_CHUNK: usize = 256;
 const PAIR_CHUNK: usize = 1024;
@@ -160,6 +165,7 @@ impl World {
         numerics: Numerics,
         domain: ([f64; 3], [f64; 3]),
     ) -> Self {
+        assert!(walls.len() <= MAX_WALLS, "at most {MAX_WALLS} walls, got {}", walls.len());
         let n = grains.len();
         let r_max = grains.radius.iter().cloned().fold(0.0, f64::max);
         let grid = CellGrid::new(domain.0, domain.1, (2.0 * r_max + numerics.skin).max(1e-12));
@@ -331,6 +337,18 @@ impl World {
         std::mem::swap(&mut self.pairs, &mut self.scratch.pairs_next);
         self.scratch.pos_at_build.clear();
         self.scratch.pos_at_build.extend_from_slice(&self.grains.pos);
+        // Grains move less than half the skin before the next build, so a wall
+        // farther than radius + skin cannot be reached before then.
+        let skin = self.numerics.skin;
+        let walls = &self.walls;
+        let g = &self.grains;
+        self.scratch.near_walls.clear();
+        self.scratch.near_walls.extend((0..g.len()).map(|p| {
+            walls.iter().enumerate().fold(0u32, |mask, (w, wall)| {
+                let gap = dot(sub(g.pos[p], wall.point), wall.normal);
+                if wall.active && gap < g.radius[p] + skin { mask | (1 << w) } else { mask }
+            })
+        }));
         self.neighbour_builds += 1;
     }
 
@@ -412,6 +430,7 @@ impl World {
         let inv_i = &self.scratch.inv_inertia;
         let ext_f = &self.external_force;
         let ext_t = &self.external_torque;
+        let near_walls = &self.scratch.near_walls;
         let g = &mut self.grains;
         let (pos, radius, mass) = (&g.pos, &g.radius, &g.mass);
         g.force
@@ -446,7 +465,11 @@ impl World {
                         }
                     }
                     let (v, w, x, r) = (vel[k], omega[k], pos[p], radius[p]);
-                    for (wall, spring) in walls.iter().zip(&mut wsprings[k * nw..(k + 1) * nw]) {
+                    let mut near = near_walls[p];
+                    while near != 0 {
+                        let wi = near.trailing_zeros() as usize;
+                        near &= near - 1;
+                        let (wall, spring) = (&walls[wi], &mut wsprings[k * nw + wi]);
                         if !wall.active {
                             continue;
                         }

@@ -416,6 +416,9 @@ impl Scene {
             }
         }
 
+        if spec.gates.len() > 26 {
+            v.fail("gates", format!("at most 26 gates (32 walls with the box faces), got {}", spec.gates.len()));
+        }
         let mut gate_normals = Vec::new();
         for (g, gate) in spec.gates.iter().enumerate() {
             let key = format!("gates[{g}]");
