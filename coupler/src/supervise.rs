@@ -31,6 +31,8 @@ fn sibling_binary(name: &str) -> Result<PathBuf, String> {
 struct Bar {
     bar: Option<ProgressBar>,
     phase: String,
+    /// (simulated time, wall time) of the previous progress event.
+    last: (f64, f64),
 }
 
 impl Bar {
@@ -45,7 +47,7 @@ impl Bar {
             b.enable_steady_tick(Duration::from_millis(500));
             b
         });
-        Self { bar, phase: String::new() }
+        Self { bar, phase: String::new(), last: (0.0, 0.0) }
     }
 
     fn println(&self, line: &str) {
@@ -55,12 +57,15 @@ impl Bar {
         }
     }
 
-    fn progress(&mut self, ev: &serde_json::Value, particles_hint: &str) {
+    fn progress(&mut self, ev: &serde_json::Value) {
         let phase = ev["phase"].as_str().unwrap_or("").to_string();
         let t = ev["t"].as_f64().unwrap_or(0.0);
         let t_end = ev["t_end"].as_f64().unwrap_or(1.0).max(1e-12);
         let wall = ev["wall"].as_f64().unwrap_or(0.0);
-        let msg = format!("t = {t:.4} / {t_end:.3} s{particles_hint}");
+        let (t0, w0) = if phase == self.phase { self.last } else { (t, wall) };
+        self.last = (t, wall);
+        let rate = if wall > w0 { (t - t0) / (wall - w0) } else { 0.0 };
+        let msg = format!("t = {t:.4} / {t_end:.3} s, {:.1} ms simulated per wall second", rate * 1e3);
         match &self.bar {
             Some(b) => {
                 if phase != self.phase {
@@ -155,7 +160,7 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
             line = stdout.next_line(), if stdout_open => match line {
                 Ok(Some(l)) => {
                     if let Ok(ev) = serde_json::from_str::<serde_json::Value>(&l) {
-                        if ev["event"] == "progress" { bar.progress(&ev, ""); }
+                        if ev["event"] == "progress" { bar.progress(&ev); }
                     }
                 }
                 _ => stdout_open = false,

@@ -145,7 +145,13 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
     let x0 = scene.spec.domain.min[0];
     let out = &scene.spec.output;
 
-    progress.log(&format!(
+    // Lines logged before the recorder exists go to /log at t = 0 as well.
+    let mut early_log = Vec::new();
+    let mut note = |progress: &mut dyn Progress, line: String| {
+        progress.log(&line);
+        early_log.push(line);
+    };
+    note(progress, format!(
         "contact law: k_n = {} N/m, k_t = {} N/m, e = {} -> damping ratio {:.5}; contact {:.3e} s; dt {:.3e} s ({:.1} steps per contact)",
         setup.grain_law.normal_stiffness,
         setup.grain_law.tangential_stiffness,
@@ -157,13 +163,13 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
     ));
     let packing = packing::build(scene, &setup, stop, |t, tmax| progress.deposition(t, tmax))?;
     let rep = &packing.report;
-    progress.log(&if rep.from_cache {
+    note(progress, if rep.from_cache {
         format!("packing: {} grains from cache {}", rep.kept, rep.cache_file.as_ref().map(|p| p.display().to_string()).unwrap_or_default())
     } else {
         format!("packing: deposited {} grains in {:.3} s simulated ({:.1} s wall), kept {}", rep.generated, rep.deposition_time, rep.deposition_seconds, rep.kept)
     });
     if rep.porosity_bulk.is_finite() {
-        progress.log(&format!("packing porosity: bulk {:.4}, core {:.4}, height {:.4} m", rep.porosity_bulk, rep.porosity_core, rep.height));
+        note(progress, format!("packing porosity: bulk {:.4}, core {:.4}, height {:.4} m", rep.porosity_bulk, rep.porosity_core, rep.height));
     }
 
     let mut world = World::new(packing.grains.clone(), walls(scene, false), setup.grain_law, setup.wall_law, setup.gravity, setup.numerics, setup.domain);
@@ -199,7 +205,7 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
     let total_steps = (out.end_time / dt).ceil() as u64;
     let last_release = world.walls.iter().map(|w| w.release_time).filter(|t| t.is_finite()).fold(0.0, f64::max);
 
-    let mut front = Vec::new();
+    let mut front = Fronts::default();
     let started = Instant::now();
     let mut last_frame = (Instant::now(), 0u64);
     let mut last_progress = Instant::now();
@@ -209,6 +215,9 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
     // Frames in a row that met the rest criterion: one is not enough, a
     // bouncing grain is momentarily still at the top of each bounce.
     let mut frames_at_rest = 0;
+    for line in &early_log {
+        frames.log(0.0, LOG_INFO, line)?;
+    }
     frames.log(0.0, LOG_INFO, &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk))?;
     record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
 
@@ -257,7 +266,8 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
         }
     }
 
-    let final_front = front.last().map(|f: &FrontSample| f.x).unwrap_or(f64::NAN);
+    let final_front = front.all.last().map(|f: &FrontSample| f.x).unwrap_or(f64::NAN);
+    let final_connected = front.connected.last().map(|f: &FrontSample| f.x_norm);
     let bin = scene.spec.analysis.deposit_bin.unwrap_or(setup.max_diameter);
     let max_bins = (((scene.spec.domain.max[0] - x0) / bin).ceil() as usize).max(1);
     let g = &world.grains;
@@ -275,8 +285,10 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
             wall_per_sim_second: wall / world.time.max(1e-12),
         },
         t_ref,
-        front,
+        front: front.all,
         runout: (final_front - x0 - l0) / l0,
+        front_connected: front.connected,
+        runout_connected: final_connected,
         deposit,
         porosity_initial: rep.porosity_bulk,
         dem: Some(DemDetails {
@@ -338,15 +350,27 @@ fn check_blow_up(world: &World, setup: &DemSetup) -> Result<(), RunError> {
 }
 
 /// Records one frame; returns the largest grain speed.
-fn record_frame(frames: &mut Frames, world: &World, scene: &Scene, t_ref: f64, front: &mut Vec<FrontSample>, rate: f64, with_state: bool) -> Result<f64, RecordError> {
+/// Front samples of a run: all grains, and grains touching another grain.
+#[derive(Default)]
+struct Fronts {
+    all: Vec<FrontSample>,
+    connected: Vec<FrontSample>,
+}
+
+fn record_frame(frames: &mut Frames, world: &World, scene: &Scene, t_ref: f64, front: &mut Fronts, rate: f64, with_state: bool) -> Result<f64, RecordError> {
     let started = Instant::now();
     let g = &world.grains;
     let t = world.time;
     let x0 = scene.spec.domain.min[0];
     let l0 = scene.spec.analysis.column_length;
     let fx = front_position((0..g.len()).map(|p| (g.pos[p][0] + g.radius[p], g.mass[p])), scene.spec.analysis.front_mass_fraction, &mut frames.scratch);
+    let fraction = scene.spec.analysis.front_mass_fraction;
+    let touching = (0..g.len()).filter(|&p| world.coordination[p] > 0);
+    let fc = front_position(touching.map(|p| (g.pos[p][0] + g.radius[p], g.mass[p])), fraction, &mut frames.scratch);
     let sample = FrontSample { t, t_norm: t / t_ref, x: fx, x_norm: (fx - x0 - l0) / l0 };
-    front.push(sample);
+    let connected = FrontSample { t, t_norm: t / t_ref, x: fc, x_norm: (fc - x0 - l0) / l0 };
+    front.all.push(sample);
+    front.connected.push(connected);
     let max_speed = world.max_speed();
 
     if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
@@ -395,6 +419,8 @@ fn record_frame(frames: &mut Frames, world: &World, scene: &Scene, t_ref: f64, f
             max_speed,
             mean_coordination: world.mean_coordination(),
             particle_steps_per_s: rate,
+            front_connected_x: fc,
+            front_connected_norm: connected.x_norm,
         };
         rec.log(ch.metrics, t, &metrics)?;
         if with_state {

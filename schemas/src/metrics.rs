@@ -19,4 +19,7 @@ pub struct DemMetrics {
     pub mean_coordination: f64,
     /// Throughput since the last frame.
     pub particle_steps_per_s: f64,
+    /// Front of the grains in contact with another grain, m, and normalised.
+    pub front_connected_x: f64,
+    pub front_connected_norm: f64,
 }

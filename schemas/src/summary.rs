@@ -26,6 +26,15 @@ pub struct RunSummary {
     pub front: Vec<FrontSample>,
     /// (L_f − L0)/L0 at the end.
     pub runout: f64,
+    /// The front of the grains touching at least one other grain: the edge of
+    /// the continuous mass, blind to isolated grains rolling ahead (closer to
+    /// what a camera calls the front). Same form as `front`; empty for methods
+    /// without contacts.
+    #[serde(default)]
+    pub front_connected: Vec<FrontSample>,
+    /// (L_f − L0)/L0 of `front_connected` at the end.
+    #[serde(default)]
+    pub runout_connected: Option<f64>,
     /// Final deposit profile: [x, height] pairs, m.
     pub deposit: Vec<[f64; 2]>,
     /// Bulk porosity of the initial column: 1 − V_solid / V_region of the first

@@ -62,6 +62,13 @@ fn summary_holds_the_measures() {
     let runout = s["runout"].as_f64().unwrap();
     assert!(runout > 0.5, "runout {runout}");
     assert_eq!(runout, front.last().unwrap()["x_norm"].as_f64().unwrap());
+    // The front of the connected mass: same sampling, starts at the gate, and
+    // ends no further than the front of all grains plus one grain.
+    let connected = s["front_connected"].as_array().unwrap();
+    assert_eq!(connected.len(), front.len());
+    assert!((connected[0]["x"].as_f64().unwrap() - f0["x"].as_f64().unwrap()).abs() < 2.5e-3);
+    let runout_connected = s["runout_connected"].as_f64().unwrap();
+    assert!(runout_connected > 0.5 && runout_connected <= runout + 2.5e-3 / 0.02, "{runout_connected} vs {runout}");
     // Deposit: grains spread out, the pile is lower than the initial column.
     let deposit = s["deposit"].as_array().unwrap();
     let h_max = deposit.iter().map(|p| p[1].as_f64().unwrap()).fold(0.0, f64::max);
