@@ -14,22 +14,42 @@ pub fn print(scene: &Scene) {
     let s = &scene.spec;
     let method = scene.method();
     println!("scene        {} — {}", s.scene.name, s.scene.description);
-    println!("method       {} ({})", method.name(), match method {
-        Method::DemDry => "dem_proc",
-        Method::LbmFluid => "lbm_proc (not available yet)",
-        Method::DemLbm => "dem_proc + lbm_proc (not available yet)",
-    });
+    println!(
+        "method       {} ({})",
+        method.name(),
+        match method {
+            Method::DemDry => "dem_proc",
+            Method::LbmFluid => "lbm_proc (not available yet)",
+            Method::DemLbm => "dem_proc + lbm_proc (not available yet)",
+        }
+    );
     let d = &s.domain;
     println!(
         "domain       [{:.4}, {:.4}] x [{:.4}, {:.4}] x [{:.4}, {:.4}] m, gravity {:?} m/s², walls {}",
-        d.min[0], d.max[0], d.min[1], d.max[1], d.min[2], d.max[2], d.gravity,
+        d.min[0],
+        d.max[0],
+        d.min[1],
+        d.max[1],
+        d.min[2],
+        d.max[2],
+        d.gravity,
         d.walls.iter().map(|f| f.name()).collect::<Vec<_>>().join(" ")
     );
     for g in &s.gates {
-        println!("gate         {} at {:?}, normal {:?}, removed at t = {} s", g.name, g.point, g.normal, g.release_time);
+        println!(
+            "gate         {} at {:?}, normal {:?}, removed at t = {} s",
+            g.name, g.point, g.normal, g.release_time
+        );
     }
     let t_ref = scene.reference_time();
-    println!("t_ref        {:.4} s ({:?}); end time {} s = {:.2} t_ref; frames every {} s", t_ref, s.analysis.condition, s.output.end_time, s.output.end_time / t_ref, s.output.record_interval);
+    println!(
+        "t_ref        {:.4} s ({:?}); end time {} s = {:.2} t_ref; frames every {} s",
+        t_ref,
+        s.analysis.condition,
+        s.output.end_time,
+        s.output.end_time / t_ref,
+        s.output.record_interval
+    );
     let mut warnings = Vec::new();
 
     if !s.particles.is_empty() {
@@ -40,7 +60,12 @@ pub fn print(scene: &Scene) {
         let law = &setup.grain_law;
         println!(
             "contact      k_n {} N/m, k_t {} N/m, e {} -> damping ratio {:.5} (no-tension law), mu_s {}, mu_r {}",
-            law.normal_stiffness, law.tangential_stiffness, scene.dem().restitution, law.damping_ratio, law.friction, law.rolling_friction
+            law.normal_stiffness,
+            law.tangential_stiffness,
+            scene.dem().restitution,
+            law.damping_ratio,
+            law.friction,
+            law.rolling_friction
         );
         println!(
             "time step    {:.3e} s; contact duration {:.3e} s -> {:.1} steps per contact",
@@ -59,11 +84,19 @@ pub fn print(scene: &Scene) {
             if s.deposition.cache && path.exists() {
                 println!("packing      cached: {}", path.display());
             } else {
-                println!("packing      gravity deposition at friction {} until grains are slower than {} m/s (cached as {})", s.deposition.friction, s.deposition.rest_speed, path.display());
+                println!(
+                    "packing      gravity deposition at friction {} until grains are slower than {} m/s (cached as {})",
+                    s.deposition.friction,
+                    s.deposition.rest_speed,
+                    path.display()
+                );
             }
         }
         if setup.steps_per_contact < 20.0 {
-            warnings.push(format!("only {:.1} steps per contact: restitution and stability suffer below ~20; lower dem.time_step", setup.steps_per_contact));
+            warnings.push(format!(
+                "only {:.1} steps per contact: restitution and stability suffer below ~20; lower dem.time_step",
+                setup.steps_per_contact
+            ));
         }
         // Static overlap at the column base relative to the grain size.
         let rho = s.particles[0].density;
@@ -72,7 +105,10 @@ pub fn print(scene: &Scene) {
         let overlap = base_force / law.normal_stiffness / dmean;
         println!("stiffness    base overlap ~{:.2} % of D under the column weight", overlap * 100.0);
         if overlap > 0.01 {
-            warnings.push(format!("grains at the base overlap ~{:.1} % of D: raise dem.normal_stiffness for the rigid limit", overlap * 100.0));
+            warnings.push(format!(
+                "grains at the base overlap ~{:.1} % of D: raise dem.normal_stiffness for the rigid limit",
+                overlap * 100.0
+            ));
         }
     }
     if !s.fluids.is_empty() {

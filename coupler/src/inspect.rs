@@ -44,7 +44,11 @@ pub fn inspect(path: &Path) -> Result<(), String> {
             for msg in stream {
                 let Ok(msg) = msg else { break };
                 let schema = msg.channel.schema.as_ref().map(|s| s.name.clone()).unwrap_or_else(|| "-".into());
-                let e = topics.entry(msg.channel.topic.clone()).or_insert((schema, msg.channel.message_encoding.clone(), 0));
+                let e = topics.entry(msg.channel.topic.clone()).or_insert((
+                    schema,
+                    msg.channel.message_encoding.clone(),
+                    0,
+                ));
                 e.2 += 1;
                 t0 = t0.min(msg.log_time);
                 t1 = t1.max(msg.log_time);
@@ -62,7 +66,17 @@ pub fn inspect(path: &Path) -> Result<(), String> {
         Some(json) => {
             let v: serde_json::Value = serde_json::from_str(&json).map_err(|e| format!("summary is not JSON: {e}"))?;
             println!("summary");
-            for key in ["scene", "method", "status", "sim_time", "steps", "wall_seconds", "t_ref", "runout", "porosity_initial"] {
+            for key in [
+                "scene",
+                "method",
+                "status",
+                "sim_time",
+                "steps",
+                "wall_seconds",
+                "t_ref",
+                "runout",
+                "porosity_initial",
+            ] {
                 if let Some(x) = v.get(key) {
                     println!("  {key:<16} {x}");
                 }
@@ -71,7 +85,12 @@ pub fn inspect(path: &Path) -> Result<(), String> {
                 println!("  {:<16} {x}", "throughput");
             }
             if let Some(f) = v.get("front").and_then(|f| f.as_array()) {
-                println!("  {:<16} {} samples, last {}", "front", f.len(), f.last().map(|x| x.to_string()).unwrap_or_default());
+                println!(
+                    "  {:<16} {} samples, last {}",
+                    "front",
+                    f.len(),
+                    f.last().map(|x| x.to_string()).unwrap_or_default()
+                );
             }
         }
         None => println!("summary      none recorded (run interrupted before the end or still running)"),

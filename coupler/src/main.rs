@@ -15,7 +15,11 @@ use schemas::{Scene, EXIT_BAD_SCENE};
 pub const DEFAULT_SCENE: &str = "scenes/ceccato2020/dry_h060.toml";
 
 #[derive(Parser)]
-#[command(name = "coupler", version, about = "Runs saturated granular flow scenes (DEM, LBM, MPM) and records them to MCAP")]
+#[command(
+    name = "coupler",
+    version,
+    about = "Runs saturated granular flow scenes (DEM, LBM, MPM) and records them to MCAP"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -55,7 +59,7 @@ enum Command {
     },
 }
 
-fn load(scene: &PathBuf, set: &[String]) -> Result<Scene, ExitCode> {
+fn load(scene: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
     Scene::load(scene, set).map_err(|e| {
         eprintln!("coupler: invalid scene {}:\n{e}", scene.display());
         ExitCode::from(EXIT_BAD_SCENE as u8)

@@ -24,7 +24,11 @@ fn sibling_binary(name: &str) -> Result<PathBuf, String> {
     if path.exists() {
         Ok(path)
     } else {
-        Err(format!("{} not found next to {}; build it with `cargo build --release -p {name}`", path.display(), exe.display()))
+        Err(format!(
+            "{} not found next to {}; build it with `cargo build --release -p {name}`",
+            path.display(),
+            exe.display()
+        ))
     }
 }
 
@@ -140,7 +144,12 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
             return ExitCode::FAILURE;
         }
     };
-    eprintln!("coupler: running {} ({}) with dem_proc, output in {}", scene.spec.scene.name, method.name(), out.display());
+    eprintln!(
+        "coupler: running {} ({}) with dem_proc, output in {}",
+        scene.spec.scene.name,
+        method.name(),
+        out.display()
+    );
 
     let mut stdout = BufReader::new(child.stdout.take().expect("piped")).lines();
     let mut stderr = BufReader::new(child.stderr.take().expect("piped")).lines();
@@ -194,21 +203,22 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     let summary = finish_summary(&out, started.elapsed().as_secs_f64(), interrupts > 0 && !status.success());
     let recorded = recording.exists();
     match status.code() {
-        Some(0) => {
-            match &summary {
-                Some(s) => {
-                    report(s, &out);
-                    ExitCode::SUCCESS
-                }
-                None => {
-                    eprintln!("coupler: dem_proc finished but left no readable summary in {}", out.display());
-                    ExitCode::FAILURE
-                }
+        Some(0) => match &summary {
+            Some(s) => {
+                report(s, &out);
+                ExitCode::SUCCESS
             }
-        }
+            None => {
+                eprintln!("coupler: dem_proc finished but left no readable summary in {}", out.display());
+                ExitCode::FAILURE
+            }
+        },
         Some(c) if c == EXIT_INTERRUPTED => {
             if recorded {
-                eprintln!("coupler: run interrupted; the recording up to the interruption is in {}", recording.display());
+                eprintln!(
+                    "coupler: run interrupted; the recording up to the interruption is in {}",
+                    recording.display()
+                );
             } else {
                 eprintln!("coupler: run interrupted before the collapse started; nothing was recorded");
             }
@@ -300,6 +310,10 @@ fn report(s: &serde_json::Value, out: &Path) {
         num(&s["wall_seconds"]),
         rate
     );
-    eprintln!("coupler: runout (L_f - L0)/L0 = {:.4}; initial porosity {:.4}", num(&s["runout"]), num(&s["porosity_initial"]));
+    eprintln!(
+        "coupler: runout (L_f - L0)/L0 = {:.4}; initial porosity {:.4}",
+        num(&s["runout"]),
+        num(&s["porosity_initial"])
+    );
     eprintln!("coupler: wrote {} and {}", out.join("run.mcap").display(), out.join("summary.json").display());
 }

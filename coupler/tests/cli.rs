@@ -22,11 +22,13 @@ fn check_reports_time_step_and_steps_per_contact() {
 
 #[test]
 fn bad_scene_exits_2_naming_the_key() {
-    let out = coupler().args(["check", "scenes/ceccato2020/dry_h060.toml", "--set", "dem.friction=-0.2"]).output().unwrap();
+    let out =
+        coupler().args(["check", "scenes/ceccato2020/dry_h060.toml", "--set", "dem.friction=-0.2"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("dem.friction: must be >= 0, got -0.2"), "{err}");
-    let out = coupler().args(["run", "scenes/ceccato2020/dry_h060.toml", "--set", "output.end_time=-1"]).output().unwrap();
+    let out =
+        coupler().args(["run", "scenes/ceccato2020/dry_h060.toml", "--set", "output.end_time=-1"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("output.end_time"));
     let out = coupler().args(["check", "does/not/exist.toml"]).output().unwrap();
@@ -40,6 +42,10 @@ fn inspect_rejects_a_file_that_is_not_mcap() {
     std::fs::write(&path, b"hello").unwrap();
     let out = coupler().args(["inspect", path.to_str().unwrap()]).output().unwrap();
     assert_eq!(out.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("not an MCAP file"), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("not an MCAP file"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let _ = std::fs::remove_file(path);
 }

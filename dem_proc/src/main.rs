@@ -77,7 +77,10 @@ struct Reporter {
 impl Progress for Reporter {
     fn deposition(&mut self, t: f64, t_max: f64) {
         if self.json {
-            println!("{{\"event\":\"progress\",\"phase\":\"deposition\",\"t\":{t},\"t_end\":{t_max},\"wall\":{}}}", self.started.elapsed().as_secs_f64());
+            println!(
+                "{{\"event\":\"progress\",\"phase\":\"deposition\",\"t\":{t},\"t_end\":{t_max},\"wall\":{}}}",
+                self.started.elapsed().as_secs_f64()
+            );
         } else {
             eprintln!("deposition: t = {t:.4} s");
         }
@@ -86,7 +89,10 @@ impl Progress for Reporter {
         if self.json {
             println!("{{\"event\":\"progress\",\"phase\":\"collapse\",\"t\":{t},\"t_end\":{t_end},\"steps\":{steps},\"wall\":{}}}", self.started.elapsed().as_secs_f64());
         } else {
-            eprintln!("collapse: t = {t:.4} / {t_end} s, {steps} steps, {:.1} s wall", self.started.elapsed().as_secs_f64());
+            eprintln!(
+                "collapse: t = {t:.4} / {t_end} s, {steps} steps, {:.1} s wall",
+                self.started.elapsed().as_secs_f64()
+            );
         }
     }
     fn log(&mut self, message: &str) {
@@ -120,11 +126,21 @@ fn set_threads(threads: Option<usize>) -> Result<(), ExitCode> {
 fn collapse_world(scene: &Scene) -> Result<dem_proc::world::World, ExitCode> {
     use dem_proc::{packing, setup};
     let s = setup::DemSetup::from_scene(scene);
-    let p = packing::build(scene, &s, &AtomicBool::new(false), |t, _| eprintln!("deposition: t = {t:.4} s")).map_err(|e| {
-        eprintln!("dem_proc: error: {e}");
-        ExitCode::FAILURE
-    })?;
-    let mut w = dem_proc::world::World::new(p.grains, setup::walls(scene, false), s.grain_law, s.wall_law, s.gravity, s.numerics, s.domain);
+    let p = packing::build(scene, &s, &AtomicBool::new(false), |t, _| eprintln!("deposition: t = {t:.4} s")).map_err(
+        |e| {
+            eprintln!("dem_proc: error: {e}");
+            ExitCode::FAILURE
+        },
+    )?;
+    let mut w = dem_proc::world::World::new(
+        p.grains,
+        setup::walls(scene, false),
+        s.grain_law,
+        s.wall_law,
+        s.gravity,
+        s.numerics,
+        s.domain,
+    );
     w.set_histories(&p.histories);
     w.prime_forces();
     Ok(w)
@@ -167,7 +183,8 @@ fn main() -> ExitCode {
                     ExitCode::FAILURE
                 })?;
                 let data = dem_proc::lammps::data_file(&w.grains, setup.domain);
-                let input = dem_proc::lammps::input_file(&scene, &setup, &w.grains, "packing.data", steps, "final.dump");
+                let input =
+                    dem_proc::lammps::input_file(&scene, &setup, &w.grains, "packing.data", steps, "final.dump");
                 for (name, text) in [("packing.data", data), ("in.collapse", input)] {
                     std::fs::write(out.join(name), text).map_err(|e| {
                         eprintln!("dem_proc: cannot write {name}: {e}");

@@ -103,10 +103,21 @@ fn has_deposit(scene: &Scene) -> bool {
 }
 
 /// Builds (or loads) the packing. `progress(t_sim, t_max)` is called now and then.
-pub fn build(scene: &Scene, setup: &DemSetup, stop: &AtomicBool, mut progress: impl FnMut(f64, f64)) -> Result<Packing, PackingError> {
+pub fn build(
+    scene: &Scene,
+    setup: &DemSetup,
+    stop: &AtomicBool,
+    mut progress: impl FnMut(f64, f64),
+) -> Result<Packing, PackingError> {
     let (mut grains, blocks) = generate(scene);
     if !has_deposit(scene) {
-        let report = PackingReport { generated: grains.len(), kept: grains.len(), porosity_bulk: f64::NAN, porosity_core: f64::NAN, ..Default::default() };
+        let report = PackingReport {
+            generated: grains.len(),
+            kept: grains.len(),
+            porosity_bulk: f64::NAN,
+            porosity_core: f64::NAN,
+            ..Default::default()
+        };
         return Ok(Packing { grains, histories: Histories::default(), report });
     }
     let path = cache_path(scene);
@@ -121,7 +132,15 @@ pub fn build(scene: &Scene, setup: &DemSetup, stop: &AtomicBool, mut progress: i
     let started = Instant::now();
     let dep = setup.for_deposition(scene);
     let generated = grains.len();
-    let mut world = World::new(std::mem::take(&mut grains), walls(scene, true), dep.grain_law, dep.wall_law, dep.gravity, dep.numerics, dep.domain);
+    let mut world = World::new(
+        std::mem::take(&mut grains),
+        walls(scene, true),
+        dep.grain_law,
+        dep.wall_law,
+        dep.gravity,
+        dep.numerics,
+        dep.domain,
+    );
     world.prime_forces();
     let rest = scene.spec.deposition.rest_speed;
     let max_time = scene.spec.deposition.max_time;
@@ -174,7 +193,12 @@ pub fn build(scene: &Scene, setup: &DemSetup, stop: &AtomicBool, mut progress: i
             .filter(|(i, j, _)| keep[*i as usize] && keep[*j as usize])
             .map(|&(i, j, s)| (new_index[i as usize], new_index[j as usize], s))
             .collect(),
-        walls: h.walls.iter().filter(|(p, _, _)| keep[*p as usize]).map(|&(p, w, s)| (new_index[p as usize], w, s)).collect(),
+        walls: h
+            .walls
+            .iter()
+            .filter(|(p, _, _)| keep[*p as usize])
+            .map(|&(p, w, s)| (new_index[p as usize], w, s))
+            .collect(),
     };
     let deposition_time = world.time;
     let mut grains = world.grains;

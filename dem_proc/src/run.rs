@@ -12,7 +12,7 @@ use foxglove::schemas::{
 };
 use serde::{Deserialize, Serialize};
 
-use schemas::measures::{deposit_profile, front_position, FrontSample};
+use schemas::measures::{coordination_shares, deposit_profile, front_position, FrontSample};
 use schemas::metrics::DemMetrics;
 use schemas::record::{metadata, timestamp, topics, ChannelId, RecordError, Recorder, RecorderBuilder};
 use schemas::scene::Scene;
@@ -65,7 +65,15 @@ impl DemState {
         for (w, active) in ws.iter_mut().zip(&self.walls_active) {
             w.active = *active;
         }
-        let mut world = World::new(self.grains.clone(), ws, setup.grain_law, setup.wall_law, setup.gravity, setup.numerics, setup.domain);
+        let mut world = World::new(
+            self.grains.clone(),
+            ws,
+            setup.grain_law,
+            setup.wall_law,
+            setup.gravity,
+            setup.numerics,
+            setup.domain,
+        );
         world.set_histories(&self.histories);
         world.time = self.time;
         world.step_count = self.step;
@@ -118,7 +126,14 @@ struct Frames {
 impl Frames {
     fn log(&mut self, t: f64, level: i32, message: &str) -> Result<(), RecordError> {
         if let (Some(r), Some(c)) = (self.recorder.as_mut(), self.channels.as_ref()) {
-            let msg = Log { timestamp: Some(timestamp(t)), level, message: message.into(), name: "dem_proc".into(), file: String::new(), line: 0 };
+            let msg = Log {
+                timestamp: Some(timestamp(t)),
+                level,
+                message: message.into(),
+                name: "dem_proc".into(),
+                file: String::new(),
+                line: 0,
+            };
             r.log(c.log, t, &msg)?;
         }
         Ok(())
@@ -138,7 +153,12 @@ pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
 
 /// Runs the scene. `stop` is polled every step; when set the run ends at the
 /// step boundary with status `interrupted` and a complete recording.
-pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut dyn Progress) -> Result<RunSummary, RunError> {
+pub fn run(
+    scene: &Scene,
+    opts: &RunOptions,
+    stop: &AtomicBool,
+    progress: &mut dyn Progress,
+) -> Result<RunSummary, RunError> {
     let setup = DemSetup::from_scene(scene);
     let t_ref = scene.reference_time();
     let l0 = scene.spec.analysis.column_length;
@@ -163,16 +183,40 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
     ));
     let packing = packing::build(scene, &setup, stop, |t, tmax| progress.deposition(t, tmax))?;
     let rep = &packing.report;
-    note(progress, if rep.from_cache {
-        format!("packing: {} grains from cache {}", rep.kept, rep.cache_file.as_ref().map(|p| p.display().to_string()).unwrap_or_default())
-    } else {
-        format!("packing: deposited {} grains in {:.3} s simulated ({:.1} s wall), kept {}", rep.generated, rep.deposition_time, rep.deposition_seconds, rep.kept)
-    });
+    note(
+        progress,
+        if rep.from_cache {
+            format!(
+                "packing: {} grains from cache {}",
+                rep.kept,
+                rep.cache_file.as_ref().map(|p| p.display().to_string()).unwrap_or_default()
+            )
+        } else {
+            format!(
+                "packing: deposited {} grains in {:.3} s simulated ({:.1} s wall), kept {}",
+                rep.generated, rep.deposition_time, rep.deposition_seconds, rep.kept
+            )
+        },
+    );
     if rep.porosity_bulk.is_finite() {
-        note(progress, format!("packing porosity: bulk {:.4}, core {:.4}, height {:.4} m", rep.porosity_bulk, rep.porosity_core, rep.height));
+        note(
+            progress,
+            format!(
+                "packing porosity: bulk {:.4}, core {:.4}, height {:.4} m",
+                rep.porosity_bulk, rep.porosity_core, rep.height
+            ),
+        );
     }
 
-    let mut world = World::new(packing.grains.clone(), walls(scene, false), setup.grain_law, setup.wall_law, setup.gravity, setup.numerics, setup.domain);
+    let mut world = World::new(
+        packing.grains.clone(),
+        walls(scene, false),
+        setup.grain_law,
+        setup.wall_law,
+        setup.gravity,
+        setup.numerics,
+        setup.domain,
+    );
     world.set_histories(&packing.histories);
     world.prime_forces();
     let coordination_initial = world.mean_coordination();
@@ -218,7 +262,11 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
     for line in &early_log {
         frames.log(0.0, LOG_INFO, line)?;
     }
-    frames.log(0.0, LOG_INFO, &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk))?;
+    frames.log(
+        0.0,
+        LOG_INFO,
+        &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk),
+    )?;
     record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
 
     while world.step_count < total_steps {
@@ -229,18 +277,21 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
             frames.log(world.time, LOG_WARN, "interrupted by signal; recording the last state")?;
             break;
         }
-        if s % steps_per_frame == 0 {
+        if s.is_multiple_of(steps_per_frame) {
             let elapsed = last_frame.0.elapsed().as_secs_f64();
             let rate = (s - last_frame.1) as f64 * world.len() as f64 / elapsed.max(1e-9);
             last_frame = (Instant::now(), s);
-            let with_state = s % steps_per_state == 0;
+            let with_state = s.is_multiple_of(steps_per_state);
             record_frame(&mut frames, &world, scene, t_ref, &mut front, rate, with_state)?;
             last_recorded_step = s;
             if with_state {
                 last_state_step = s;
             }
             check_blow_up(&world, &setup)?;
-            if out.stop_at_rest && world.time > last_release && moving_mass_fraction(&world, out.rest_speed) <= out.rest_fraction {
+            if out.stop_at_rest
+                && world.time > last_release
+                && moving_mass_fraction(&world, out.rest_speed) <= out.rest_fraction
+            {
                 frames_at_rest += 1;
                 if frames_at_rest >= REST_FRAMES {
                     status = "at_rest";
@@ -310,7 +361,11 @@ pub fn run(scene: &Scene, opts: &RunOptions, stop: &AtomicBool, progress: &mut d
         wall_seconds_total: None,
     };
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
-    frames.log(world.time, LOG_INFO, &format!("run {status}: t = {:.4} s, runout {:.4}", world.time, summary.runout))?;
+    frames.log(
+        world.time,
+        LOG_INFO,
+        &format!("run {status}: t = {:.4} s, runout {:.4}", world.time, summary.runout),
+    )?;
     if let Some(mut rec) = frames.recorder.take() {
         let mut meta = BTreeMap::new();
         meta.insert("json".into(), json.clone());
@@ -332,7 +387,11 @@ fn moving_mass_fraction(world: &World, speed: f64) -> f64 {
             moving += g.mass[p];
         }
     }
-    if total > 0.0 { moving / total } else { 0.0 }
+    if total > 0.0 {
+        moving / total
+    } else {
+        0.0
+    }
 }
 
 fn check_blow_up(world: &World, setup: &DemSetup) -> Result<(), RunError> {
@@ -342,8 +401,14 @@ fn check_blow_up(world: &World, setup: &DemSetup) -> Result<(), RunError> {
     let limit = (2.0 * g * 1000.0 * h).sqrt();
     for (p, v) in world.grains.vel.iter().enumerate() {
         let speed = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        if !(speed < limit) {
-            return Err(RunError::BlowUp { t: world.time, grain: p, speed, dt: setup.numerics.dt, steps_per_contact: setup.steps_per_contact });
+        if !speed.is_finite() || speed >= limit {
+            return Err(RunError::BlowUp {
+                t: world.time,
+                grain: p,
+                speed,
+                dt: setup.numerics.dt,
+                steps_per_contact: setup.steps_per_contact,
+            });
         }
     }
     Ok(())
@@ -357,13 +422,25 @@ struct Fronts {
     connected: Vec<FrontSample>,
 }
 
-fn record_frame(frames: &mut Frames, world: &World, scene: &Scene, t_ref: f64, front: &mut Fronts, rate: f64, with_state: bool) -> Result<f64, RecordError> {
+fn record_frame(
+    frames: &mut Frames,
+    world: &World,
+    scene: &Scene,
+    t_ref: f64,
+    front: &mut Fronts,
+    rate: f64,
+    with_state: bool,
+) -> Result<f64, RecordError> {
     let started = Instant::now();
     let g = &world.grains;
     let t = world.time;
     let x0 = scene.spec.domain.min[0];
     let l0 = scene.spec.analysis.column_length;
-    let fx = front_position((0..g.len()).map(|p| (g.pos[p][0] + g.radius[p], g.mass[p])), scene.spec.analysis.front_mass_fraction, &mut frames.scratch);
+    let fx = front_position(
+        (0..g.len()).map(|p| (g.pos[p][0] + g.radius[p], g.mass[p])),
+        scene.spec.analysis.front_mass_fraction,
+        &mut frames.scratch,
+    );
     let fraction = scene.spec.analysis.front_mass_fraction;
     let touching = (0..g.len()).filter(|&p| world.coordination[p] > 0);
     let fc = front_position(touching.map(|p| (g.pos[p][0] + g.radius[p], g.mass[p])), fraction, &mut frames.scratch);
@@ -383,13 +460,24 @@ fn record_frame(frames: &mut Frames, world: &World, scene: &Scene, t_ref: f64, f
                 data.extend_from_slice(&(x as f32).to_le_bytes());
             }
         }
-        let field = |name: &str, offset: u32| PackedElementField { name: name.into(), offset, r#type: NumericType::Float32 as i32 };
+        let field = |name: &str, offset: u32| PackedElementField {
+            name: name.into(),
+            offset,
+            r#type: NumericType::Float32 as i32,
+        };
         let cloud = PointCloud {
             timestamp: Some(timestamp(t)),
             frame_id: "world".into(),
             pose: Some(identity_pose()),
             point_stride: STRIDE as u32,
-            fields: vec![field("x", 0), field("y", 4), field("z", 8), field("radius", 12), field("speed", 16), field("coordination", 20)],
+            fields: vec![
+                field("x", 0),
+                field("y", 4),
+                field("z", 8),
+                field("radius", 12),
+                field("speed", 16),
+                field("coordination", 20),
+            ],
             data: data.into(),
         };
         rec.log(ch.particles, t, &cloud)?;
@@ -398,7 +486,10 @@ fn record_frame(frames: &mut Frames, world: &World, scene: &Scene, t_ref: f64, f
                 .map(|p| {
                     let d = 2.0 * g.radius[p];
                     SpherePrimitive {
-                        pose: Some(Pose { position: Some(Vector3 { x: g.pos[p][0], y: g.pos[p][1], z: g.pos[p][2] }), orientation: Some(identity_quat()) }),
+                        pose: Some(Pose {
+                            position: Some(Vector3 { x: g.pos[p][0], y: g.pos[p][1], z: g.pos[p][2] }),
+                            orientation: Some(identity_quat()),
+                        }),
                         size: Some(Vector3 { x: d, y: d, z: d }),
                         color: Some(Color { r: 0.76, g: 0.6, b: 0.42, a: 1.0 }),
                     }
@@ -406,10 +497,18 @@ fn record_frame(frames: &mut Frames, world: &World, scene: &Scene, t_ref: f64, f
                 .collect();
             let update = SceneUpdate {
                 deletions: vec![],
-                entities: vec![SceneEntity { timestamp: Some(timestamp(t)), frame_id: "world".into(), id: "grains".into(), spheres, ..Default::default() }],
+                entities: vec![SceneEntity {
+                    timestamp: Some(timestamp(t)),
+                    frame_id: "world".into(),
+                    id: "grains".into(),
+                    spheres,
+                    ..Default::default()
+                }],
             };
             rec.log(sph, t, &update)?;
         }
+        let share = coordination_shares(&world.coordination);
+        let share = |k: usize| share[k];
         let metrics = DemMetrics {
             t,
             t_norm: t / t_ref,
@@ -421,6 +520,13 @@ fn record_frame(frames: &mut Frames, world: &World, scene: &Scene, t_ref: f64, f
             particle_steps_per_s: rate,
             front_connected_x: fc,
             front_connected_norm: connected.x_norm,
+            coordination_0: share(0),
+            coordination_1: share(1),
+            coordination_2: share(2),
+            coordination_3: share(3),
+            coordination_4: share(4),
+            coordination_5: share(5),
+            coordination_6_or_more: share(6),
         };
         rec.log(ch.metrics, t, &metrics)?;
         if with_state {

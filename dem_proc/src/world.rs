@@ -22,8 +22,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::law::{evaluate, ContactInput, ContactLaw};
-use crate::vec3::{add, dot, neg, norm2, scale, sub};
 use crate::neighbours::{rebuild, CellGrid, PairList};
+use crate::vec3::{add, dot, neg, norm2, scale, sub};
 
 /// A frictional plane; grains stay on the side its normal points to.
 #[derive(Debug, Clone, PartialEq)]
@@ -346,7 +346,11 @@ impl World {
         self.scratch.near_walls.extend((0..g.len()).map(|p| {
             walls.iter().enumerate().fold(0u32, |mask, (w, wall)| {
                 let gap = dot(sub(g.pos[p], wall.point), wall.normal);
-                if wall.active && gap < g.radius[p] + skin { mask | (1 << w) } else { mask }
+                if wall.active && gap < g.radius[p] + skin {
+                    mask | (1 << w)
+                } else {
+                    mask
+                }
             })
         }));
         self.neighbour_builds += 1;
@@ -457,7 +461,9 @@ impl World {
                         }
                     }
                     let row = pl.row_start[p] as usize..pl.row_start[p + 1] as usize;
-                    for ((&touching, force), torque) in pl.touching[row.clone()].iter().zip(&pl.force[row.clone()]).zip(&pl.torque_i[row]) {
+                    for ((&touching, force), torque) in
+                        pl.touching[row.clone()].iter().zip(&pl.force[row.clone()]).zip(&pl.torque_i[row])
+                    {
                         if touching {
                             f = add(f, *force);
                             t = add(t, *torque);

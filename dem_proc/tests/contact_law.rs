@@ -203,7 +203,11 @@ fn elastic_frictionless_gas_conserves_energy() {
     for ix in 0..6 {
         for iy in 0..6 {
             for iz in 0..6 {
-                let p = [-half + (ix as f64 + 0.5) * 2.0 * half / 6.0, -half + (iy as f64 + 0.5) * 2.0 * half / 6.0, -half + (iz as f64 + 0.5) * 2.0 * half / 6.0];
+                let p = [
+                    -half + (ix as f64 + 0.5) * 2.0 * half / 6.0,
+                    -half + (iy as f64 + 0.5) * 2.0 * half / 6.0,
+                    -half + (iz as f64 + 0.5) * 2.0 * half / 6.0,
+                ];
                 let v = [rng.symmetric() * 0.3, rng.symmetric() * 0.3, rng.symmetric() * 0.3];
                 g.push(p, v, R, RHO);
             }

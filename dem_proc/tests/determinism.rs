@@ -59,7 +59,15 @@ fn scene() -> Scene {
 fn collapse_world(scene: &Scene) -> World {
     let setup = DemSetup::from_scene(scene);
     let p = packing::build(scene, &setup, &AtomicBool::new(false), |_, _| {}).expect("deposits");
-    let mut w = World::new(p.grains, walls(scene, false), setup.grain_law, setup.wall_law, setup.gravity, setup.numerics, setup.domain);
+    let mut w = World::new(
+        p.grains,
+        walls(scene, false),
+        setup.grain_law,
+        setup.wall_law,
+        setup.gravity,
+        setup.numerics,
+        setup.domain,
+    );
     w.set_histories(&p.histories);
     w.prime_forces();
     w
@@ -73,7 +81,11 @@ fn neighbour_list_matches_brute_force() {
     let pos: Vec<[f64; 3]> = (0..n)
         .map(|_| {
             // Some grains outside the grid too: they must be clamped into border cells, not lost.
-            [(hi[0] * 1.1) * rng.uniform() - 0.05 * hi[0], hi[1] * rng.uniform(), (hi[2] * 1.2) * rng.uniform() - 0.1 * hi[2]]
+            [
+                (hi[0] * 1.1) * rng.uniform() - 0.05 * hi[0],
+                hi[1] * rng.uniform(),
+                (hi[2] * 1.2) * rng.uniform() - 0.1 * hi[2],
+            ]
         })
         .collect();
     let radius: Vec<f64> = (0..n).map(|_| 1e-3 * (1.0 + 0.5 * rng.symmetric())).collect();

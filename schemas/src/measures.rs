@@ -58,9 +58,26 @@ pub fn deposit_profile(items: impl Iterator<Item = (f64, f64)>, x0: f64, bin: f6
     heights.iter().enumerate().map(|(i, &h)| [x0 + (i as f64 + 0.5) * bin, h]).collect()
 }
 
+/// Fractions of grains with 0, 1, … 5 and ≥ 6 contacts (paper Fig. 7).
+pub fn coordination_shares(coordination: &[u16]) -> [f64; 7] {
+    let mut counts = [0usize; 7];
+    for &c in coordination {
+        counts[(c as usize).min(6)] += 1;
+    }
+    let n = coordination.len().max(1) as f64;
+    counts.map(|c| c as f64 / n)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn coordination_shares_sum_to_one() {
+        let s = coordination_shares(&[0, 0, 1, 3, 6, 9, 12, 4]);
+        assert_eq!(s, [0.25, 0.125, 0.0, 0.125, 0.125, 0.0, 0.375]);
+        assert!((s.iter().sum::<f64>() - 1.0).abs() < 1e-15);
+    }
 
     #[test]
     fn front_is_the_mass_quantile() {

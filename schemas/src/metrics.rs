@@ -22,4 +22,12 @@ pub struct DemMetrics {
     /// Front of the grains in contact with another grain, m, and normalised.
     pub front_connected_x: f64,
     pub front_connected_norm: f64,
+    /// Fraction of grains with 0, 1, … 5 and ≥ 6 grain–grain contacts (paper Fig. 7).
+    pub coordination_0: f64,
+    pub coordination_1: f64,
+    pub coordination_2: f64,
+    pub coordination_3: f64,
+    pub coordination_4: f64,
+    pub coordination_5: f64,
+    pub coordination_6_or_more: f64,
 }

@@ -26,7 +26,8 @@ fn parse_path(path: &str) -> Result<Vec<Segment<'_>>, String> {
         out.push(Segment::Key(name));
         while !rest.is_empty() {
             let close = rest.find(']').ok_or_else(|| format!("unclosed '[' in {path:?}"))?;
-            let idx: usize = rest[1..close].parse().map_err(|_| format!("bad index {:?} in {path:?}", &rest[1..close]))?;
+            let idx: usize =
+                rest[1..close].parse().map_err(|_| format!("bad index {:?} in {path:?}", &rest[1..close]))?;
             out.push(Segment::Index(idx));
             rest = &rest[close + 1..];
         }
@@ -45,9 +46,9 @@ fn parse_value(text: &str) -> toml::Value {
 /// Applies one `KEY.PATH=VALUE` to `root`. Missing tables on the path are
 /// created (so a default section can be set); arrays must already hold the index.
 pub fn apply_override(root: &mut toml::Value, assignment: &str) -> Result<(), SceneError> {
-    let (path, value) = assignment.split_once('=').ok_or_else(|| {
-        SceneError::new("--set", format!("expected KEY.PATH=VALUE, got {assignment:?}"))
-    })?;
+    let (path, value) = assignment
+        .split_once('=')
+        .ok_or_else(|| SceneError::new("--set", format!("expected KEY.PATH=VALUE, got {assignment:?}")))?;
     let path = path.trim();
     let segments = parse_path(path).map_err(|e| SceneError::new("--set", e))?;
     let mut cur = root;
@@ -56,9 +57,9 @@ pub fn apply_override(root: &mut toml::Value, assignment: &str) -> Result<(), Sc
         let is_last = i == last;
         cur = match seg {
             Segment::Key(k) => {
-                let table = cur.as_table_mut().ok_or_else(|| {
-                    SceneError::new(path, format!("cannot set {k:?}: its parent is not a table"))
-                })?;
+                let table = cur
+                    .as_table_mut()
+                    .ok_or_else(|| SceneError::new(path, format!("cannot set {k:?}: its parent is not a table")))?;
                 if is_last {
                     table.insert((*k).to_string(), parse_value(value.trim()));
                     return Ok(());
@@ -66,9 +67,9 @@ pub fn apply_override(root: &mut toml::Value, assignment: &str) -> Result<(), Sc
                 table.entry((*k).to_string()).or_insert_with(|| toml::Value::Table(Default::default()))
             }
             Segment::Index(idx) => {
-                let arr = cur.as_array_mut().ok_or_else(|| {
-                    SceneError::new(path, format!("cannot index [{idx}]: not an array"))
-                })?;
+                let arr = cur
+                    .as_array_mut()
+                    .ok_or_else(|| SceneError::new(path, format!("cannot index [{idx}]: not an array")))?;
                 let len = arr.len();
                 let slot = arr.get_mut(*idx).ok_or_else(|| {
                     SceneError::new(path, format!("index [{idx}] out of range: the array has {len} elements"))

@@ -93,7 +93,12 @@ impl RecorderBuilder {
 
     /// A channel with a custom encoding and no schema record; describe the
     /// encoding in `metadata` so other readers can decode it.
-    pub fn raw_channel(&mut self, topic: &str, message_encoding: &str, metadata: BTreeMap<String, String>) -> Result<ChannelId, RecordError> {
+    pub fn raw_channel(
+        &mut self,
+        topic: &str,
+        message_encoding: &str,
+        metadata: BTreeMap<String, String>,
+    ) -> Result<ChannelId, RecordError> {
         let cid = self.writer.add_channel(0, topic, message_encoding, &metadata).map_err(|e| self.err(e))?;
         Ok(ChannelId(cid))
     }
@@ -111,7 +116,11 @@ impl RecorderBuilder {
     }
 }
 
-fn writer_loop(mut writer: mcap::Writer<BufWriter<File>>, rx: Receiver<Command>, path: PathBuf) -> Result<u64, RecordError> {
+fn writer_loop(
+    mut writer: mcap::Writer<BufWriter<File>>,
+    rx: Receiver<Command>,
+    path: PathBuf,
+) -> Result<u64, RecordError> {
     let mut bytes = 0_u64;
     let werr = |source| RecordError::Write { path: path.clone(), source };
     let mut sequence = 0_u32;
@@ -122,7 +131,12 @@ fn writer_loop(mut writer: mcap::Writer<BufWriter<File>>, rx: Receiver<Command>,
                 bytes += data.len() as u64;
                 writer
                     .write_to_known_channel(
-                        &mcap::records::MessageHeader { channel_id: channel, sequence, log_time, publish_time: log_time },
+                        &mcap::records::MessageHeader {
+                            channel_id: channel,
+                            sequence,
+                            log_time,
+                            publish_time: log_time,
+                        },
                         &data,
                     )
                     .map_err(werr)?;

@@ -372,17 +372,16 @@ impl Method {
 impl Scene {
     /// Reads, overrides and validates a scene file.
     pub fn load(path: &Path, overrides: &[String]) -> Result<Scene, SceneError> {
-        let text = std::fs::read_to_string(path).map_err(|e| {
-            SceneError::new("", format!("cannot read scene file {}: {e}", path.display()))
-        })?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| SceneError::new("", format!("cannot read scene file {}: {e}", path.display())))?;
         let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
         Self::from_toml_str(&text, &base, overrides)
     }
 
     /// Parses TOML text, applies `KEY.PATH=VALUE` overrides, validates.
     pub fn from_toml_str(text: &str, base_dir: &Path, overrides: &[String]) -> Result<Scene, SceneError> {
-        let mut value: toml::Value = toml::from_str(text)
-            .map_err(|e| SceneError::new("", format!("not valid TOML: {}", e.message().trim())))?;
+        let mut value: toml::Value =
+            toml::from_str(text).map_err(|e| SceneError::new("", format!("not valid TOML: {}", e.message().trim())))?;
         for ov in overrides {
             apply_override(&mut value, ov)?;
         }
@@ -407,7 +406,10 @@ impl Scene {
             v.finite(&format!("domain.max[{a}]"), d.max[a]);
             v.finite(&format!("domain.gravity[{a}]"), d.gravity[a]);
             if d.max[a] <= d.min[a] {
-                v.fail(&format!("domain.max[{a}]"), format!("must be > domain.min[{a}] = {}, got {}", d.min[a], d.max[a]));
+                v.fail(
+                    &format!("domain.max[{a}]"),
+                    format!("must be > domain.min[{a}] = {}, got {}", d.min[a], d.max[a]),
+                );
             }
         }
         for (i, f) in d.walls.iter().enumerate() {
@@ -447,10 +449,9 @@ impl Scene {
                 PackingSpec::Deposit { region, porosity, count, .. } => {
                     v.region(&format!("{key}.packing.region"), region, d);
                     match (porosity, count) {
-                        (Some(_), Some(_)) | (None, None) => v.fail(
-                            &format!("{key}.packing"),
-                            "give exactly one of `porosity` and `count`".into(),
-                        ),
+                        (Some(_), Some(_)) | (None, None) => {
+                            v.fail(&format!("{key}.packing"), "give exactly one of `porosity` and `count`".into())
+                        }
                         (Some(n), None) => v.open_range(&format!("{key}.packing.porosity"), *n, 0.25, 1.0),
                         (None, Some(c)) => {
                             if *c == 0 {
@@ -470,7 +471,10 @@ impl Scene {
                         }
                     }
                     if spheres.is_empty() {
-                        v.fail(&format!("{key}.packing"), "an explicit packing needs `spheres` or `file` with at least one grain".into());
+                        v.fail(
+                            &format!("{key}.packing"),
+                            "an explicit packing needs `spheres` or `file` with at least one grain".into(),
+                        );
                     }
                     for (i, s) in spheres.iter().enumerate() {
                         let k = format!("{key}.packing.spheres[{i}]");
@@ -494,7 +498,10 @@ impl Scene {
         }
 
         if !spec.particles.is_empty() && spec.dem.is_none() {
-            v.fail("dem", "the scene has particle blocks, so it needs a [dem] table with the contact parameters".into());
+            v.fail(
+                "dem",
+                "the scene has particle blocks, so it needs a [dem] table with the contact parameters".into(),
+            );
         }
         if let Some(dem) = &spec.dem {
             v.positive("dem.normal_stiffness", dem.normal_stiffness);
@@ -688,7 +695,10 @@ impl Validator {
                 self.fail(&format!("{key}.max[{a}]"), format!("must be > min[{a}] = {}, got {}", r.min[a], r.max[a]));
             }
             if r.min[a] < d.min[a] || r.max[a] > d.max[a] {
-                self.fail(key, format!("region {:?}..{:?} is not inside the domain {:?}..{:?}", r.min, r.max, d.min, d.max));
+                self.fail(
+                    key,
+                    format!("region {:?}..{:?} is not inside the domain {:?}..{:?}", r.min, r.max, d.min, d.max),
+                );
                 return;
             }
         }

@@ -135,7 +135,8 @@ fn structural_errors_name_their_key() {
     let e = load("this is = = not toml", &[]).unwrap_err();
     assert!(e.to_string().contains("not valid TOML"), "{e}");
     // Particles without a [dem] table.
-    let no_dem = VALID.split("[dem]").next().unwrap().to_string() + "[output]" + VALID.split("[output]").nth(1).unwrap();
+    let no_dem =
+        VALID.split("[dem]").next().unwrap().to_string() + "[output]" + VALID.split("[output]").nth(1).unwrap();
     let e = load(&no_dem, &[]).unwrap_err();
     assert!(e.names_key("dem"), "{e}");
 }

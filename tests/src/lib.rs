@@ -19,7 +19,11 @@ fn profile_dir() -> PathBuf {
 /// A workspace binary built by this `cargo test` run.
 pub fn binary(name: &str) -> PathBuf {
     let p = profile_dir().join(name);
-    assert!(p.exists(), "{} is missing: run the tests with `cargo test --workspace --release`, which builds every binary", p.display());
+    assert!(
+        p.exists(),
+        "{} is missing: run the tests with `cargo test --workspace --release`, which builds every binary",
+        p.display()
+    );
     p
 }
 
@@ -36,16 +40,32 @@ pub fn scratch_dir(name: &str) -> PathBuf {
 pub fn python_with_mcap() -> Option<PathBuf> {
     let venv = profile_dir().parent()?.join("pyenv");
     let python = venv.join("bin/python");
-    let ready = |py: &Path| Command::new(py).args(["-c", "import mcap, mcap_protobuf"]).output().map(|o| o.status.success()).unwrap_or(false);
+    let ready = |py: &Path| {
+        Command::new(py)
+            .args(["-c", "import mcap, mcap_protobuf"])
+            .output()
+            .map(|o| o.status.success())
+            .unwrap_or(false)
+    };
     if python.exists() && ready(&python) {
         return Some(python);
     }
-    let created = Command::new("python3").args(["-m", "venv"]).arg(&venv).status().map(|s| s.success()).unwrap_or(false);
+    let created =
+        Command::new("python3").args(["-m", "venv"]).arg(&venv).status().map(|s| s.success()).unwrap_or(false);
     if !created {
         return None;
     }
     let installed = Command::new(&python)
-        .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check", "mcap", "mcap-protobuf-support", "protobuf"])
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+            "mcap",
+            "mcap-protobuf-support",
+            "protobuf",
+        ])
         .status()
         .map(|s| s.success())
         .unwrap_or(false);

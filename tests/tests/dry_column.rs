@@ -35,7 +35,18 @@ fn summary() -> serde_json::Value {
 #[test]
 fn summary_holds_the_measures() {
     let s = summary();
-    for key in ["scene", "method", "sim_time", "wall_seconds", "steps", "throughput", "front", "runout", "deposit", "porosity_initial"] {
+    for key in [
+        "scene",
+        "method",
+        "sim_time",
+        "wall_seconds",
+        "steps",
+        "throughput",
+        "front",
+        "runout",
+        "deposit",
+        "porosity_initial",
+    ] {
         assert!(s.get(key).is_some(), "summary lacks {key}");
     }
     assert_eq!(s["method"], "dem");
@@ -54,7 +65,12 @@ fn summary_holds_the_measures() {
     assert_eq!(f0["t"].as_f64().unwrap(), 0.0);
     assert!(f0["x_norm"].as_f64().unwrap().abs() < 2.5e-3 / 0.02, "{f0}");
     for f in front {
-        let (t, tn, x, xn) = (f["t"].as_f64().unwrap(), f["t_norm"].as_f64().unwrap(), f["x"].as_f64().unwrap(), f["x_norm"].as_f64().unwrap());
+        let (t, tn, x, xn) = (
+            f["t"].as_f64().unwrap(),
+            f["t_norm"].as_f64().unwrap(),
+            f["x"].as_f64().unwrap(),
+            f["x_norm"].as_f64().unwrap(),
+        );
         assert!((tn - t / t_ref).abs() < 1e-9 && (xn - (x - 0.02) / 0.02).abs() < 1e-9);
     }
     // The column collapses: the front advances well beyond the gate, and the
@@ -150,7 +166,11 @@ fn python_reader_prints_the_front() {
     let text = String::from_utf8_lossy(&out.stdout);
     let s = summary();
     let front = s["front"].as_array().unwrap();
-    let rows: Vec<Vec<f64>> = text.lines().filter(|l| !l.starts_with("runout")).map(|l| l.split_whitespace().map(|x| x.parse().unwrap()).collect()).collect();
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .filter(|l| !l.starts_with("runout"))
+        .map(|l| l.split_whitespace().map(|x| x.parse().unwrap()).collect())
+        .collect();
     assert_eq!(rows.len(), front.len());
     for (row, f) in rows.iter().zip(front) {
         for (v, key) in row.iter().zip(["t", "t_norm", "x", "x_norm"]) {
@@ -170,7 +190,16 @@ fn ctrl_c_stops_cleanly() {
     let mut child = Command::new(binary("coupler"))
         .current_dir(repo_root())
         .env("SGF_CACHE_DIR", out.join("cache"))
-        .args(["run", "scenes/validation/dry_small.toml", "--quiet", "--set", "output.end_time=100", "--set", "output.stop_at_rest=false", "--out"])
+        .args([
+            "run",
+            "scenes/validation/dry_small.toml",
+            "--quiet",
+            "--set",
+            "output.end_time=100",
+            "--set",
+            "output.stop_at_rest=false",
+            "--out",
+        ])
         .arg(&out)
         .stderr(Stdio::piped())
         .spawn()
@@ -186,7 +215,8 @@ fn ctrl_c_stops_cleanly() {
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
     let status = child.wait().unwrap();
     assert_eq!(status.code(), Some(130));
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(s["status"], "interrupted");
     assert!(s["sim_time"].as_f64().unwrap() > 0.0 && s["sim_time"].as_f64().unwrap() < 100.0);
     let bytes = std::fs::read(out.join("run.mcap")).unwrap();
@@ -211,7 +241,8 @@ fn bouncing_sphere_comes_to_rest_on_time() {
         .status()
         .unwrap();
     assert!(status.success());
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert!(s["porosity_initial"].is_null(), "{}", s["porosity_initial"]);
     assert_eq!(s["status"], "at_rest");
     let (h, g, e) = (0.01f64, 9.81f64, 0.88f64);
