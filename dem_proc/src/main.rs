@@ -132,18 +132,7 @@ fn collapse_world(scene: &Scene) -> Result<dem_proc::world::World, ExitCode> {
             ExitCode::FAILURE
         },
     )?;
-    let mut w = dem_proc::world::World::new(
-        p.grains,
-        setup::walls(scene, false),
-        s.grain_law,
-        s.wall_law,
-        s.gravity,
-        s.numerics,
-        s.domain,
-    );
-    w.set_histories(&p.histories);
-    w.prime_forces();
-    Ok(w)
+    Ok(dem_proc::run::collapse_world(scene, &s, &p))
 }
 
 fn main() -> ExitCode {

@@ -18,7 +18,7 @@ use schemas::record::{metadata, timestamp, topics, ChannelId, RecordError, Recor
 use schemas::scene::Scene;
 use schemas::summary::{DemDetails, RunSummary, Throughput};
 
-use crate::packing::{self, PackingError};
+use crate::packing::{self, Packing, PackingError};
 use crate::setup::{walls, DemSetup};
 use crate::world::{Grains, Histories, World};
 
@@ -79,6 +79,23 @@ impl DemState {
         world.step_count = self.step;
         world
     }
+}
+
+/// The world at the start of the run: the packing with its contact springs,
+/// the walls with the gates until their release, forces primed for Verlet.
+pub fn collapse_world(scene: &Scene, setup: &DemSetup, packing: &Packing) -> World {
+    let mut world = World::new(
+        packing.grains.clone(),
+        walls(scene, false),
+        setup.grain_law,
+        setup.wall_law,
+        setup.gravity,
+        setup.numerics,
+        setup.domain,
+    );
+    world.set_histories(&packing.histories);
+    world.prime_forces();
+    world
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -208,17 +225,7 @@ pub fn run(
         );
     }
 
-    let mut world = World::new(
-        packing.grains.clone(),
-        walls(scene, false),
-        setup.grain_law,
-        setup.wall_law,
-        setup.gravity,
-        setup.numerics,
-        setup.domain,
-    );
-    world.set_histories(&packing.histories);
-    world.prime_forces();
+    let mut world = collapse_world(scene, &setup, &packing);
     let coordination_initial = world.mean_coordination();
 
     std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;

@@ -8,7 +8,7 @@ use dem_proc::neighbours::{rebuild, CellGrid, PairList};
 use dem_proc::packing;
 use dem_proc::rng::SplitMix64;
 use dem_proc::run::DemState;
-use dem_proc::setup::{walls, DemSetup};
+use dem_proc::setup::DemSetup;
 use dem_proc::world::World;
 use schemas::Scene;
 
@@ -59,18 +59,7 @@ fn scene() -> Scene {
 fn collapse_world(scene: &Scene) -> World {
     let setup = DemSetup::from_scene(scene);
     let p = packing::build(scene, &setup, &AtomicBool::new(false), |_, _| {}).expect("deposits");
-    let mut w = World::new(
-        p.grains,
-        walls(scene, false),
-        setup.grain_law,
-        setup.wall_law,
-        setup.gravity,
-        setup.numerics,
-        setup.domain,
-    );
-    w.set_histories(&p.histories);
-    w.prime_forces();
-    w
+    dem_proc::run::collapse_world(scene, &setup, &p)
 }
 
 #[test]
