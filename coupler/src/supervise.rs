@@ -124,6 +124,16 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
         eprintln!("coupler: cannot create output directory {}: {e}", out.display());
         return ExitCode::FAILURE;
     }
+    // A reused output directory must not show a previous run's results as this one's.
+    for stale in ["run.mcap", "dem.mcap", "summary.json", "dem_summary.json"] {
+        let path = out.join(stale);
+        if path.exists() {
+            if let Err(e) = std::fs::remove_file(&path) {
+                eprintln!("coupler: cannot remove the previous run's {}: {e}", path.display());
+                return ExitCode::FAILURE;
+            }
+        }
+    }
     let scene_file = out.join("scene.toml");
     if let Err(e) = std::fs::write(&scene_file, scene.to_toml()) {
         eprintln!("coupler: cannot write {}: {e} (is the disk full?)", scene_file.display());

@@ -8,6 +8,21 @@ use std::time::Instant;
 
 use clap::{Parser, Subcommand};
 
+// Output that never panics: when the coupler is gone its pipes are closed,
+// and a panic on a write would skip finishing the recording.
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout().lock(), $($t)*);
+    }};
+}
+macro_rules! tell {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr().lock(), $($t)*);
+    }};
+}
+
 use dem_proc::run::{run, Progress, RunError, RunOptions};
 use schemas::{Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
 
@@ -77,36 +92,36 @@ struct Reporter {
 impl Progress for Reporter {
     fn deposition(&mut self, t: f64, t_max: f64) {
         if self.json {
-            println!(
+            say!(
                 "{{\"event\":\"progress\",\"phase\":\"deposition\",\"t\":{t},\"t_end\":{t_max},\"wall\":{}}}",
                 self.started.elapsed().as_secs_f64()
             );
         } else {
-            eprintln!("deposition: t = {t:.4} s");
+            tell!("deposition: t = {t:.4} s");
         }
     }
     fn collapse(&mut self, t: f64, t_end: f64, steps: u64) {
         if self.json {
-            println!("{{\"event\":\"progress\",\"phase\":\"collapse\",\"t\":{t},\"t_end\":{t_end},\"steps\":{steps},\"wall\":{}}}", self.started.elapsed().as_secs_f64());
+            say!("{{\"event\":\"progress\",\"phase\":\"collapse\",\"t\":{t},\"t_end\":{t_end},\"steps\":{steps},\"wall\":{}}}", self.started.elapsed().as_secs_f64());
         } else {
-            eprintln!(
+            tell!(
                 "collapse: t = {t:.4} / {t_end} s, {steps} steps, {:.1} s wall",
                 self.started.elapsed().as_secs_f64()
             );
         }
     }
     fn log(&mut self, message: &str) {
-        eprintln!("dem_proc: {message}");
+        tell!("dem_proc: {message}");
     }
 }
 
 fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
     let scene = Scene::load(path, set).map_err(|e| {
-        eprintln!("dem_proc: invalid scene {}:\n{e}", path.display());
+        tell!("dem_proc: invalid scene {}:\n{e}", path.display());
         ExitCode::from(EXIT_BAD_SCENE as u8)
     })?;
     if scene.spec.particles.is_empty() {
-        eprintln!("dem_proc: the scene has no [[particles]] blocks; nothing for the DEM to do (fluid-only scenes run in lbm_proc)");
+        tell!("dem_proc: the scene has no [[particles]] blocks; nothing for the DEM to do (fluid-only scenes run in lbm_proc)");
         return Err(ExitCode::from(EXIT_BAD_SCENE as u8));
     }
     Ok(scene)
@@ -115,7 +130,7 @@ fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode>
 fn set_threads(threads: Option<usize>) -> Result<(), ExitCode> {
     if let Some(n) = threads {
         rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().map_err(|e| {
-            eprintln!("dem_proc: cannot set {n} threads: {e}");
+            tell!("dem_proc: cannot set {n} threads: {e}");
             ExitCode::FAILURE
         })?;
     }
@@ -126,12 +141,11 @@ fn set_threads(threads: Option<usize>) -> Result<(), ExitCode> {
 fn collapse_world(scene: &Scene) -> Result<dem_proc::world::World, ExitCode> {
     use dem_proc::{packing, setup};
     let s = setup::DemSetup::from_scene(scene);
-    let p = packing::build(scene, &s, &AtomicBool::new(false), |t, _| eprintln!("deposition: t = {t:.4} s")).map_err(
-        |e| {
-            eprintln!("dem_proc: error: {e}");
+    let p =
+        packing::build(scene, &s, &AtomicBool::new(false), |t, _| tell!("deposition: t = {t:.4} s")).map_err(|e| {
+            tell!("dem_proc: error: {e}");
             ExitCode::FAILURE
-        },
-    )?;
+        })?;
     Ok(dem_proc::run::collapse_world(scene, &s, &p))
 }
 
@@ -148,7 +162,7 @@ fn main() -> ExitCode {
                     w.step();
                 }
                 let seconds = started.elapsed().as_secs_f64();
-                println!(
+                say!(
                     "{{\"particles\":{},\"steps\":{steps},\"seconds\":{seconds},\"particle_steps_per_s\":{},\"threads\":{},\"neighbour_builds\":{},\"pairs\":{},\"sim_time\":{},\"stage_seconds\":{}}}",
                     w.len(),
                     steps as f64 * w.len() as f64 / seconds,
@@ -168,7 +182,7 @@ fn main() -> ExitCode {
                 let w = collapse_world(&scene)?;
                 let setup = dem_proc::setup::DemSetup::from_scene(&scene);
                 std::fs::create_dir_all(&out).map_err(|e| {
-                    eprintln!("dem_proc: cannot create {}: {e}", out.display());
+                    tell!("dem_proc: cannot create {}: {e}", out.display());
                     ExitCode::FAILURE
                 })?;
                 let data = dem_proc::lammps::data_file(&w.grains, setup.domain);
@@ -176,16 +190,23 @@ fn main() -> ExitCode {
                     dem_proc::lammps::input_file(&scene, &setup, &w.grains, "packing.data", steps, "final.dump");
                 for (name, text) in [("packing.data", data), ("in.collapse", input)] {
                     std::fs::write(out.join(name), text).map_err(|e| {
-                        eprintln!("dem_proc: cannot write {name}: {e}");
+                        tell!("dem_proc: cannot write {name}: {e}");
                         ExitCode::FAILURE
                     })?;
                 }
-                eprintln!("dem_proc: wrote {}/packing.data and in.collapse ({} grains)", out.display(), w.len());
+                tell!("dem_proc: wrote {}/packing.data and in.collapse ({} grains)", out.display(), w.len());
                 Ok::<(), ExitCode>(())
             })();
             result.err().unwrap_or(ExitCode::SUCCESS)
         }
         Command::Run { scene, out, set, threads, no_record, progress_json, supervised } => {
+            let stop = Arc::new(AtomicBool::new(false));
+            for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+                if let Err(e) = signal_hook::flag::register(sig, Arc::clone(&stop)) {
+                    tell!("dem_proc: cannot install signal handler: {e}");
+                    return ExitCode::FAILURE;
+                }
+            }
             if supervised {
                 die_with_parent();
             }
@@ -196,21 +217,14 @@ fn main() -> ExitCode {
             if let Err(code) = set_threads(threads) {
                 return code;
             }
-            let stop = Arc::new(AtomicBool::new(false));
-            for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-                if let Err(e) = signal_hook::flag::register(sig, Arc::clone(&stop)) {
-                    eprintln!("dem_proc: cannot install signal handler: {e}");
-                    return ExitCode::FAILURE;
-                }
-            }
             let mut reporter = Reporter { json: progress_json, started: Instant::now() };
             let opts = RunOptions { out_dir: out, record: !no_record };
             match run(&scene, &opts, &stop, &mut reporter) {
                 Ok(summary) => {
                     if progress_json {
-                        println!("{{\"event\":\"done\",\"status\":\"{}\"}}", summary.status);
+                        say!("{{\"event\":\"done\",\"status\":\"{}\"}}", summary.status);
                     }
-                    eprintln!(
+                    tell!(
                         "dem_proc: {} at t = {:.4} s after {} steps in {:.1} s ({:.3e} particle-steps/s); runout {:.4}",
                         summary.status,
                         summary.sim_time,
@@ -226,11 +240,11 @@ fn main() -> ExitCode {
                     }
                 }
                 Err(RunError::Packing(dem_proc::packing::PackingError::Interrupted)) => {
-                    eprintln!("dem_proc: interrupted during deposition; nothing recorded");
+                    tell!("dem_proc: interrupted during deposition; nothing recorded");
                     ExitCode::from(EXIT_INTERRUPTED as u8)
                 }
                 Err(e) => {
-                    eprintln!("dem_proc: error: {e}");
+                    tell!("dem_proc: error: {e}");
                     ExitCode::FAILURE
                 }
             }

@@ -11,11 +11,15 @@
 //! fixed order (by partner index), so forces do not depend on when the list
 //! was rebuilt, on the thread count, or on the candidate set.
 
+/// Largest number of cells a grid may have (4 M cells, 16 MB of cell starts).
+const MAX_CELLS: usize = 1 << 22;
+
 /// Uniform grid over the domain.
 #[derive(Debug, Clone)]
 pub struct CellGrid {
     origin: [f64; 3],
-    inv_cell: f64,
+    /// Cells per metre along each axis.
+    inv_cell: [f64; 3],
     dims: [usize; 3],
     /// First grain of each cell in `sorted` (len = cells + 1).
     cell_start: Vec<u32>,
@@ -26,16 +30,25 @@ pub struct CellGrid {
 
 impl CellGrid {
     pub fn new(min: [f64; 3], max: [f64; 3], cell: f64) -> Self {
+        // Cells may be wider than `cell` (floor), never narrower. A domain huge
+        // against the grains gets wider cells rather than an unbounded grid
+        // (every rebuild clears all cells).
+        let mut cell = cell;
         let mut dims = [1usize; 3];
-        for a in 0..3 {
-            dims[a] = (((max[a] - min[a]) / cell).floor() as usize).clamp(1, 1 << 20);
+        loop {
+            for a in 0..3 {
+                dims[a] = (((max[a] - min[a]) / cell).floor() as usize).clamp(1, 1 << 20);
+            }
+            if dims.iter().product::<usize>() <= MAX_CELLS {
+                break;
+            }
+            cell *= 1.25;
         }
-        // Cells may be wider than `cell` (floor), never narrower.
-        let width = (0..3).map(|a| (max[a] - min[a]) / dims[a] as f64).fold(f64::INFINITY, f64::min);
+        let inv_cell = [0, 1, 2].map(|a| dims[a] as f64 / (max[a] - min[a]));
         let cells = dims[0] * dims[1] * dims[2];
         Self {
             origin: min,
-            inv_cell: 1.0 / width.max(cell),
+            inv_cell,
             dims,
             cell_start: vec![0; cells + 1],
             sorted: Vec::new(),
@@ -47,7 +60,7 @@ impl CellGrid {
     fn coord(&self, p: &[f64; 3]) -> [usize; 3] {
         let mut c = [0usize; 3];
         for a in 0..3 {
-            let f = ((p[a] - self.origin[a]) * self.inv_cell).floor();
+            let f = ((p[a] - self.origin[a]) * self.inv_cell[a]).floor();
             c[a] = if f.is_nan() || f < 0.0 { 0 } else { (f as usize).min(self.dims[a] - 1) };
         }
         c

@@ -266,6 +266,7 @@ pub fn run(
     // Frames in a row that met the rest criterion: one is not enough, a
     // bouncing grain is momentarily still at the top of each bounce.
     let mut frames_at_rest = 0;
+    let mut has_moved = false;
     for line in &early_log {
         frames.log(0.0, LOG_INFO, line)?;
     }
@@ -295,10 +296,10 @@ pub fn run(
                 last_state_step = s;
             }
             check_blow_up(&world, &setup)?;
-            if out.stop_at_rest
-                && world.time > last_release
-                && moving_mass_fraction(&world, out.rest_speed) <= out.rest_fraction
-            {
+            let moving = moving_mass_fraction(&world, out.rest_speed);
+            // The grains start at rest: only a stop after they have moved counts.
+            has_moved |= moving > out.rest_fraction;
+            if out.stop_at_rest && has_moved && world.time > last_release && moving <= out.rest_fraction {
                 frames_at_rest += 1;
                 if frames_at_rest >= REST_FRAMES {
                     status = "at_rest";

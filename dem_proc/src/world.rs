@@ -213,7 +213,11 @@ impl World {
         for s in self.pairs.spring.iter_mut() {
             *s = [0.0; 3];
         }
+        let n = self.len();
         for &(i, j, s) in &h.pairs {
+            if i >= j || j as usize >= n {
+                continue; // not a pair of this world (foreign cache or state)
+            }
             if let Some(k) = self.pairs.find(i as usize, j as usize) {
                 self.pairs.spring[k] = s;
             }

@@ -448,6 +448,16 @@ impl Scene {
             match &block.packing {
                 PackingSpec::Deposit { region, porosity, count, .. } => {
                     v.region(&format!("{key}.packing.region"), region, d);
+                    let d_max = block.diameter * (1.0 + block.diameter_spread);
+                    for a in 0..2 {
+                        let width = region.max[a] - region.min[a];
+                        if width < d_max {
+                            v.fail(
+                                &format!("{key}.packing.region"),
+                                format!("is {width} m wide along {}, narrower than the largest grain ({d_max} m); diameters are in metres", ["x", "y"][a]),
+                            );
+                        }
+                    }
                     match (porosity, count) {
                         (Some(_), Some(_)) | (None, None) => {
                             v.fail(&format!("{key}.packing"), "give exactly one of `porosity` and `count`".into())

@@ -96,6 +96,12 @@ const BAD_VALUES: &[(&str, &str, &str)] = &[
     ("particles[0].packing.porosity=1.2", "particles[0].packing.porosity", "(0.25, 1)"),
     ("particles[0].packing.region.max=[0.04, 0.05, 0.5]", "particles[0].packing.region", "not inside the domain"),
     ("domain.max=[0.7, 0.05, -1.0]", "domain.max[2]", "must be >"),
+    (
+        "particles[0].packing.region.max=[0.001, 0.05, 0.06]",
+        "particles[0].packing.region",
+        "narrower than the largest grain",
+    ),
+    ("particles[0].diameter=2.5", "particles[0].packing.region", "diameters are in metres"),
     ("gates[0].normal=[0.0, 0.0, 0.0]", "gates[0].normal", "non-zero"),
     ("gates[0].release_time=-1", "gates[0].release_time", ">= 0"),
     ("output.record_interval=0", "output.record_interval", "> 0"),
