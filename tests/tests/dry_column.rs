@@ -253,3 +253,46 @@ fn bouncing_sphere_comes_to_rest_on_time() {
     let top = s["deposit"].as_array().unwrap().iter().map(|p| p[1].as_f64().unwrap()).fold(0.0, f64::max);
     assert!((top - 2.5e-3).abs() < 1e-5, "{top}");
 }
+
+/// The coupler killed outright (SIGKILL, no chance to clean up): the solver
+/// notices through PR_SET_PDEATHSIG, stops at a step boundary, and leaves a
+/// finished recording whose summary says `interrupted`; no process is left.
+#[test]
+fn killed_coupler_leaves_no_orphan_and_a_finished_recording() {
+    let out = scratch_dir("coupler_killed");
+    let mut child = Command::new(binary("coupler"))
+        .current_dir(repo_root())
+        .env("SGF_CACHE_DIR", out.join("cache"))
+        .args([
+            "run",
+            "scenes/validation/dry_small.toml",
+            "--quiet",
+            "--set",
+            "output.end_time=100",
+            "--set",
+            "output.stop_at_rest=false",
+            "--out",
+        ])
+        .arg(&out)
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let started = Instant::now();
+    while !out.join("dem.mcap").exists() {
+        assert!(started.elapsed() < Duration::from_secs(120), "run never started");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    std::thread::sleep(Duration::from_millis(1000));
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    let killed = Instant::now();
+    while integration_tests::process_running("dem_proc", &out) {
+        assert!(killed.elapsed() < Duration::from_secs(2), "dem_proc still running 2 s after the coupler died");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let bytes = std::fs::read(out.join("dem.mcap")).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("recording finished by dem_proc itself");
+    let s = summary_json_from(&bytes, &summary);
+    assert_eq!(s["status"], "interrupted");
+    assert!(s["sim_time"].as_f64().unwrap() > 0.0);
+}
