@@ -2,7 +2,7 @@
 //! the summary, the recording read back by the `mcap` crate and by the
 //! official Python reader, `coupler inspect`, and Ctrl-C.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
@@ -182,34 +182,32 @@ fn python_reader_prints_the_front() {
     assert!((runout - s["runout"].as_f64().unwrap()).abs() < 1e-5 * runout.abs());
 }
 
-/// Ctrl-C: the solver stops at a step boundary, the recording is finalised,
-/// the summary says `interrupted`, the exit status is 130, no process is left.
-#[test]
-fn ctrl_c_stops_cleanly() {
-    let out = scratch_dir("interrupted");
-    let mut child = Command::new(binary("coupler"))
+/// Starts the small column with no end and waits until its collapse (and
+/// recording) has begun. Output is discarded so no pipe can fill up.
+fn start_endless_run(name: &str) -> (std::process::Child, PathBuf) {
+    let out = scratch_dir(name);
+    let child = Command::new(binary("coupler"))
         .current_dir(repo_root())
         .env("SGF_CACHE_DIR", out.join("cache"))
-        .args([
-            "run",
-            "scenes/validation/dry_small.toml",
-            "--quiet",
-            "--set",
-            "output.end_time=100",
-            "--set",
-            "output.stop_at_rest=false",
-            "--out",
-        ])
+        .args(["run", "scenes/validation/dry_small.toml", "--quiet"])
+        .args(["--set", "output.end_time=100", "--set", "output.stop_at_rest=false", "--out"])
         .arg(&out)
-        .stderr(Stdio::piped())
+        .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    // Wait until the collapse has started (the recording exists).
     let started = Instant::now();
     while !out.join("dem.mcap").exists() {
         assert!(started.elapsed() < Duration::from_secs(120), "run never started");
         std::thread::sleep(Duration::from_millis(100));
     }
+    (child, out)
+}
+
+/// Ctrl-C: the solver stops at a step boundary, the recording is finalised,
+/// the summary says `interrupted`, the exit status is 130, no process is left.
+#[test]
+fn ctrl_c_stops_cleanly() {
+    let (mut child, out) = start_endless_run("interrupted");
     std::thread::sleep(Duration::from_millis(1500));
     // SAFETY: signalling the child we spawned.
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
@@ -223,9 +221,6 @@ fn ctrl_c_stops_cleanly() {
     assert!(mcap::Summary::read(&bytes).unwrap().is_some(), "recording finalised");
     assert!(!integration_tests::process_running("dem_proc", &out), "dem_proc left running");
 }
-
-#[allow(dead_code)]
-fn _paths(_: &Path) {}
 
 /// An explicit packing (no deposition, porosity undefined: null in the
 /// summary): a sphere dropped from 10 mm. A bouncing ball with restitution e
@@ -259,29 +254,7 @@ fn bouncing_sphere_comes_to_rest_on_time() {
 /// finished recording whose summary says `interrupted`; no process is left.
 #[test]
 fn killed_coupler_leaves_no_orphan_and_a_finished_recording() {
-    let out = scratch_dir("coupler_killed");
-    let mut child = Command::new(binary("coupler"))
-        .current_dir(repo_root())
-        .env("SGF_CACHE_DIR", out.join("cache"))
-        .args([
-            "run",
-            "scenes/validation/dry_small.toml",
-            "--quiet",
-            "--set",
-            "output.end_time=100",
-            "--set",
-            "output.stop_at_rest=false",
-            "--out",
-        ])
-        .arg(&out)
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let started = Instant::now();
-    while !out.join("dem.mcap").exists() {
-        assert!(started.elapsed() < Duration::from_secs(120), "run never started");
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let (mut child, out) = start_endless_run("coupler_killed");
     std::thread::sleep(Duration::from_millis(1000));
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
