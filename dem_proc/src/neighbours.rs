@@ -5,11 +5,10 @@
 //! one of the 26 adjacent cells. Grains outside the grid are clamped into the
 //! border cells; the clamp is monotone, so no pair is lost.
 //!
-//! The list is stored as rows: row i holds the partners j > i, sorted by j.
-//! A reverse index gives, for each grain, the pairs where it is the j side,
-//! sorted by i. Summing a grain's contacts reverse-first then row gives a
-//! fixed order (by partner index), so forces do not depend on when the list
-//! was rebuilt, on the thread count, or on the candidate set.
+//! The list is stored as rows: row i holds the partners j > i, sorted by j,
+//! so walking the rows visits the touching pairs in a fixed order (by index)
+//! whatever the candidate set: forces do not depend on when the list was
+//! rebuilt (see `World::compute_contact_forces`).
 
 /// Largest number of cells a grid may have (4 M cells, 16 MB of cell starts).
 const MAX_CELLS: usize = 1 << 22;
@@ -120,18 +119,10 @@ pub struct PairList {
     pub row_start: Vec<u32>,
     pub i: Vec<u32>,
     pub j: Vec<u32>,
-    /// Reverse index: for grain p, the pairs where p is j, sorted by i.
-    pub rev_start: Vec<u32>,
-    pub rev_pair: Vec<u32>,
     /// Tangential spring of each pair (history), m.
     pub spring: Vec<[f64; 3]>,
-    /// Force on i, and torques on i and j, from the last evaluation.
-    pub force: Vec<[f64; 3]>,
-    pub torque_i: Vec<[f64; 3]>,
-    pub torque_j: Vec<[f64; 3]>,
+    /// Whether the pair overlapped at the last evaluation.
     pub touching: Vec<bool>,
-    /// Scratch for building the reverse index.
-    cursor: Vec<u32>,
 }
 
 impl PairList {
@@ -182,32 +173,8 @@ pub fn rebuild(grid: &mut CellGrid, pos: &[[f64; 3]], radius: &[f64], skin: f64,
         next.row_start.push(next.j.len() as u32);
     }
     let m = next.j.len();
-    next.force.resize(m, [0.0; 3]);
-    next.torque_i.resize(m, [0.0; 3]);
-    next.torque_j.resize(m, [0.0; 3]);
     // Every pair counts as touching until evaluated, so the first evaluation
     // clears the springs of pairs that are apart (the buffer holds stale flags).
     next.touching.clear();
     next.touching.resize(m, true);
-
-    // Reverse index: counting sort of pairs by j; pairs are visited in i order,
-    // so each grain's reverse list is sorted by i.
-    next.rev_start.clear();
-    next.rev_start.resize(n + 1, 0);
-    for &j in &next.j {
-        next.rev_start[j as usize + 1] += 1;
-    }
-    for p in 1..=n {
-        next.rev_start[p] += next.rev_start[p - 1];
-    }
-    next.rev_pair.resize(m, 0);
-    let mut cursor = std::mem::take(&mut next.cursor);
-    cursor.clear();
-    cursor.extend_from_slice(&next.rev_start[..n]);
-    for k in 0..m {
-        let j = next.j[k] as usize;
-        next.rev_pair[cursor[j] as usize] = k as u32;
-        cursor[j] += 1;
-    }
-    next.cursor = cursor;
 }

@@ -4,18 +4,24 @@
 //! 1. `kick_and_drift`: v += ½Δt F/m, ω += ½Δt T/I, x += Δt v (velocity Verlet);
 //! 2. `update_neighbours`: rebuild the Verlet list when any grain has moved
 //!    more than half the skin since the last build;
-//! 3. `compute_pair_forces`: the contact law on every listed pair, in parallel,
-//!    each pair writing only its own slots;
-//! 4. `gather_and_kick`: per grain, in parallel: gravity + external load +
-//!    its pairs (in partner-index order) + walls, then v += ½Δt F/m, ω += ½Δt T/I.
+//! 3. `compute_contact_forces`: the contact law on every touching pair. The
+//!    grains are cut into [`FORCE_BLOCKS`] fixed blocks of rows; each block
+//!    walks its rows in order and adds every pair's force to both grains in
+//!    its own buffer (Newton's third law, one evaluation per pair), the blocks
+//!    in parallel;
+//! 4. `sum_and_kick`: per grain, in parallel: gravity + external load + the
+//!    block sums in block order + walls, then v += ½Δt F/m, ω += ½Δt T/I.
 //!
 //! No stage allocates once buffers have grown (the list rebuild reuses its
-//! buffers). Every floating-point sum has a fixed order, so results are
-//! bit-identical for any thread count.
+//! buffers). Every floating-point sum has a fixed order that depends only on
+//! the grain indices of the touching pairs, so results are bit-identical for
+//! any thread count and whenever the list was rebuilt (the blocks are fixed,
+//! not balanced per thread, for this reason).
 //!
 //! Storage is struct-of-arrays in f64: positions in a 0.7 m flume with
 //! overlaps of ~1e-5 m need more than f32's 7 digits.
 
+use std::ops::Range;
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -111,6 +117,23 @@ struct Scratch {
     near_walls: Vec<u32>,
     inv_mass: Vec<f64>,
     inv_inertia: Vec<f64>,
+    /// Per grain (radius, mass, 1/I) in one record: the pair kernel reads
+    /// them for every partner, and one cache line beats three.
+    pair_props: Vec<[f64; 3]>,
+    blocks: [BlockSums; FORCE_BLOCKS],
+}
+
+/// Contact sums of one block of rows of the pair list.
+#[derive(Debug, Default)]
+struct BlockSums {
+    /// Grains whose rows (pairs i < j) this block evaluates.
+    rows: Range<usize>,
+    /// Grains its pairs can touch: from the first row to the largest partner.
+    window: Range<usize>,
+    /// Sums over the block's touching pairs, indexed by grain − `window.start`.
+    force: Vec<[f64; 3]>,
+    torque: Vec<[f64; 3]>,
+    contacts: Vec<u16>,
 }
 
 /// Everything the DEM integrates.
@@ -144,8 +167,8 @@ pub struct World {
 pub struct StageSeconds {
     pub kick_and_drift: f64,
     pub update_neighbours: f64,
-    pub compute_pair_forces: f64,
-    pub gather_and_kick: f64,
+    pub compute_contact_forces: f64,
+    pub sum_and_kick: f64,
 }
 
 /// Walls (box faces and gates) a world can hold: one bit each in a `u32`.
@@ -153,7 +176,11 @@ pub const MAX_WALLS: usize = 32;
 
 /// Number of grains per parallel task (amortises rayon's per-task cost).
 const GRAIN_CHUNK: usize = 256;
-const PAIR_CHUNK: usize = 1024;
+
+/// Fixed blocks of pair-list rows evaluated in parallel. More blocks allow
+/// more threads but add per-grain sums; the count is part of the summation
+/// order, so changing it changes results in the last bits.
+pub const FORCE_BLOCKS: usize = 8;
 
 impl World {
     pub fn new(
@@ -198,6 +225,8 @@ impl World {
         let g = &self.grains;
         self.scratch.inv_mass = g.mass.iter().map(|m| 1.0 / m).collect();
         self.scratch.inv_inertia = g.mass.iter().zip(&g.radius).map(|(m, r)| 1.0 / (0.4 * m * r * r)).collect();
+        self.scratch.pair_props =
+            (0..g.len()).map(|p| [g.radius[p], g.mass[p], self.scratch.inv_inertia[p]]).collect();
     }
 
     pub fn len(&self) -> usize {
@@ -258,15 +287,15 @@ impl World {
             self.build_neighbours();
         }
         let t2 = Instant::now();
-        self.compute_pair_forces();
+        self.compute_contact_forces();
         let t3 = Instant::now();
-        self.gather_and_kick();
+        self.sum_and_kick();
         let t4 = Instant::now();
         let st = &mut self.stage_seconds;
         st.kick_and_drift += (t1 - t0).as_secs_f64();
         st.update_neighbours += (t2 - t1).as_secs_f64();
-        st.compute_pair_forces += (t3 - t2).as_secs_f64();
-        st.gather_and_kick += (t4 - t3).as_secs_f64();
+        st.compute_contact_forces += (t3 - t2).as_secs_f64();
+        st.sum_and_kick += (t4 - t3).as_secs_f64();
         self.time += self.numerics.dt;
         self.step_count += 1;
     }
@@ -277,8 +306,8 @@ impl World {
         self.build_neighbours();
         let dt = self.numerics.dt;
         self.numerics.dt = 0.0;
-        self.compute_pair_forces();
-        self.gather_forces_only();
+        self.compute_contact_forces();
+        self.sum_forces_only();
         self.numerics.dt = dt;
     }
 
@@ -357,43 +386,76 @@ impl World {
                 }
             })
         }));
+        self.assign_blocks();
         self.neighbour_builds += 1;
     }
 
-    /// Stage 3.
-    fn compute_pair_forces(&mut self) {
+    /// Cuts the rows into the fixed blocks and sizes each block's window.
+    fn assign_blocks(&mut self) {
+        let n = self.len();
+        let pl = &self.pairs;
+        for (b, block) in self.scratch.blocks.iter_mut().enumerate() {
+            block.rows = b * n / FORCE_BLOCKS..(b + 1) * n / FORCE_BLOCKS;
+            // Rows are sorted, so each row's last partner is its largest.
+            let reach = block
+                .rows
+                .clone()
+                .filter(|&i| pl.row_start[i + 1] > pl.row_start[i])
+                .map(|i| pl.j[pl.row_start[i + 1] as usize - 1] as usize + 1)
+                .max()
+                .unwrap_or(0);
+            block.window = block.rows.start..reach.max(block.rows.end);
+            let len = block.window.len();
+            block.force.resize(len, [0.0; 3]);
+            block.torque.resize(len, [0.0; 3]);
+            block.contacts.resize(len, 0);
+        }
+    }
+
+    /// Stage 3. Pre: the pair list covers every pair within reach.
+    /// Post: each block's buffers hold the sums of its touching pairs, in row order.
+    fn compute_contact_forces(&mut self) {
         let dt = self.numerics.dt;
         let law = self.grain_law;
         let g = &self.grains;
-        let inv_i = &self.scratch.inv_inertia;
+        let props = &self.scratch.pair_props;
         let pl = &mut self.pairs;
-        let (pi, pj) = (&pl.i, &pl.j);
-        pl.spring
-            .par_chunks_mut(PAIR_CHUNK)
-            .zip(pl.force.par_chunks_mut(PAIR_CHUNK))
-            .zip(pl.torque_i.par_chunks_mut(PAIR_CHUNK))
-            .zip(pl.torque_j.par_chunks_mut(PAIR_CHUNK))
-            .zip(pl.touching.par_chunks_mut(PAIR_CHUNK))
-            .enumerate()
-            .for_each(|(c, ((((spring, force), ti), tj), touching))| {
-                let base = c * PAIR_CHUNK;
-                for k in 0..spring.len() {
-                    let (i, j) = (pi[base + k] as usize, pj[base + k] as usize);
-                    let d = sub(g.pos[j], g.pos[i]);
-                    let (ri, rj) = (g.radius[i], g.radius[j]);
+        let (row_start, pj) = (&pl.row_start, &pl.j);
+        // Each block owns the contiguous pair range of its rows.
+        let mut parts: [(&mut [[f64; 3]], &mut [bool]); FORCE_BLOCKS] = Default::default();
+        let (mut springs, mut touchings) = (pl.spring.as_mut_slice(), pl.touching.as_mut_slice());
+        for (part, block) in parts.iter_mut().zip(&self.scratch.blocks) {
+            let len = (row_start[block.rows.end] - row_start[block.rows.start]) as usize;
+            let (s, s_rest) = std::mem::take(&mut springs).split_at_mut(len);
+            let (t, t_rest) = std::mem::take(&mut touchings).split_at_mut(len);
+            *part = (s, t);
+            (springs, touchings) = (s_rest, t_rest);
+        }
+        self.scratch.blocks.par_iter_mut().zip(parts).for_each(|(block, (spring, touching))| {
+            block.force.iter_mut().for_each(|f| *f = [0.0; 3]);
+            block.torque.iter_mut().for_each(|t| *t = [0.0; 3]);
+            block.contacts.iter_mut().for_each(|c| *c = 0);
+            let w0 = block.window.start;
+            let first_pair = row_start[block.rows.start] as usize;
+            for i in block.rows.clone() {
+                let (pos_i, [ri, mi, inv_ii]) = (g.pos[i], props[i]);
+                for k in row_start[i] as usize..row_start[i + 1] as usize {
+                    let j = pj[k] as usize;
+                    let local = k - first_pair;
+                    let d = sub(g.pos[j], pos_i);
+                    let [rj, mj, inv_ij] = props[j];
                     let dist2 = norm2(d);
                     let reach = ri + rj;
                     if dist2 >= reach * reach {
                         // Writes only when needed: most candidates stay apart for many steps.
-                        if touching[k] {
-                            spring[k] = [0.0; 3];
-                            touching[k] = false;
+                        if touching[local] {
+                            spring[local] = [0.0; 3];
+                            touching[local] = false;
                         }
                         continue;
                     }
                     let dist = dist2.sqrt();
                     let overlap = reach - dist;
-                    let (mi, mj) = (g.mass[i], g.mass[j]);
                     let input = ContactInput {
                         n: scale(d, 1.0 / dist),
                         overlap,
@@ -404,36 +466,42 @@ impl World {
                         vel_j: g.vel[j],
                         omega_j: g.omega[j],
                         effective_mass: mi * mj / (mi + mj),
-                        inv_inertia_sum: inv_i[i] + inv_i[j],
+                        inv_inertia_sum: inv_ii + inv_ij,
                         rolling_diameter: 4.0 * ri * rj / (ri + rj),
                     };
-                    let out = evaluate(&law, &input, dt, &mut spring[k]);
-                    force[k] = out.force_i;
-                    ti[k] = out.torque_i;
-                    tj[k] = out.torque_j;
-                    touching[k] = true;
+                    let out = evaluate(&law, &input, dt, &mut spring[local]);
+                    touching[local] = true;
+                    let (qi, qj) = (i - w0, j - w0);
+                    block.force[qi] = add(block.force[qi], out.force_i);
+                    block.force[qj] = sub(block.force[qj], out.force_i);
+                    block.torque[qi] = add(block.torque[qi], out.torque_i);
+                    block.torque[qj] = add(block.torque[qj], out.torque_j);
+                    block.contacts[qi] += 1;
+                    block.contacts[qj] += 1;
                 }
-            });
+            }
+        });
     }
 
     /// Stage 4 without the kick (for `prime_forces`).
-    fn gather_forces_only(&mut self) {
-        self.gather(false);
+    fn sum_forces_only(&mut self) {
+        self.sum(false);
     }
 
-    /// Stage 4.
-    fn gather_and_kick(&mut self) {
-        self.gather(true);
+    /// Stage 4. Pre: block sums of the current positions.
+    /// Post: total force and torque per grain, velocities at the full step.
+    fn sum_and_kick(&mut self) {
+        self.sum(true);
     }
 
-    fn gather(&mut self, kick: bool) {
+    fn sum(&mut self, kick: bool) {
         let dt = self.numerics.dt;
         let half = 0.5 * dt;
         let grav = self.gravity;
         let nw = self.walls.len();
         let walls = &self.walls;
         let wall_law = self.wall_law;
-        let pl = &self.pairs;
+        let blocks = &self.scratch.blocks;
         let inv_m = &self.scratch.inv_mass;
         let inv_i = &self.scratch.inv_inertia;
         let ext_f = &self.external_force;
@@ -456,23 +524,11 @@ impl World {
                     let mut f = add(scale(grav, mass[p]), ext_f[p]);
                     let mut t = ext_t[p];
                     let mut contacts = 0u16;
-                    for &q in &pl.rev_pair[pl.rev_start[p] as usize..pl.rev_start[p + 1] as usize] {
-                        let q = q as usize;
-                        if pl.touching[q] {
-                            f = sub(f, pl.force[q]);
-                            t = add(t, pl.torque_j[q]);
-                            contacts += 1;
-                        }
-                    }
-                    let row = pl.row_start[p] as usize..pl.row_start[p + 1] as usize;
-                    for ((&touching, force), torque) in
-                        pl.touching[row.clone()].iter().zip(&pl.force[row.clone()]).zip(&pl.torque_i[row])
-                    {
-                        if touching {
-                            f = add(f, *force);
-                            t = add(t, *torque);
-                            contacts += 1;
-                        }
+                    for block in blocks.iter().filter(|b| b.window.contains(&p)) {
+                        let q = p - block.window.start;
+                        f = add(f, block.force[q]);
+                        t = add(t, block.torque[q]);
+                        contacts += block.contacts[q];
                     }
                     let (v, w, x, r) = (vel[k], omega[k], pos[p], radius[p]);
                     let mut near = near_walls[p];
