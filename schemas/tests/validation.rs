@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use schemas::scene::{Condition, Method};
+use schemas::scene::{Collision, Condition, Method};
 use schemas::Scene;
 
 const VALID: &str = r#"
@@ -57,11 +57,11 @@ fn valid_scene_loads_with_defaults() {
     assert!((s.reference_time() - 0.0782).abs() < 5e-5);
 }
 
+const WATER: &str = "[[fluids]]\nname = \"water\"\ndensity = 1000.0\nviscosity = 1e-3\nregion = { min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }\n[lbm]\nspacing = 6e-4\ntime_step = 8e-5\n";
+
 #[test]
 fn saturated_reference_time_uses_reduced_gravity() {
-    let text = format!(
-        "{VALID}\n[[fluids]]\nname = \"water\"\ndensity = 1000.0\nviscosity = 1e-3\nregion = {{ min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }}\n"
-    );
+    let text = format!("{VALID}\n{WATER}");
     let s = load(&text, &["analysis.condition=\"saturated\""]).unwrap();
     assert_eq!(s.spec.analysis.condition, Condition::Saturated);
     assert_eq!(s.method(), Method::DemLbm);
@@ -110,6 +110,30 @@ const BAD_VALUES: &[(&str, &str, &str)] = &[
     ("scene.name=\"has space\"", "scene.name", "letters"),
     ("deposition.max_time=0", "deposition.max_time", "> 0"),
 ];
+
+#[test]
+fn lbm_table_defaults_and_errors() {
+    let text = format!("{VALID}\n{WATER}");
+    let s = load(&text, &[]).unwrap();
+    let lbm = s.lbm();
+    assert_eq!((lbm.smagorinsky, lbm.collision, lbm.trt_magic), (0.16, Collision::Trt, 3.0 / 16.0));
+    let without = VALID.to_string() + "\n" + &WATER[..WATER.find("[lbm]").unwrap()];
+    let e = load(&without, &[]).unwrap_err();
+    assert!(e.names_key("lbm") && e.to_string().contains("spacing"), "{e}");
+    for (set, key, reason) in [
+        ("lbm.spacing=0", "lbm.spacing", "> 0"),
+        ("lbm.spacing=0.03", "lbm.spacing", "cells along y"),
+        ("lbm.spacing=1e-6", "lbm.spacing", "lattice cells"),
+        ("lbm.time_step=-1", "lbm.time_step", "> 0"),
+        ("lbm.smagorinsky=-0.1", "lbm.smagorinsky", ">= 0"),
+        ("lbm.mach_limit=1.5", "lbm.mach_limit", "(0, 1)"),
+        ("lbm.collision=\"cumulant\"", "lbm.collision", "unknown variant"),
+    ] {
+        let e = load(&text, &[set]).expect_err(set);
+        assert!(e.names_key(key), "{set}: error does not name {key}: {e}");
+        assert!(e.to_string().contains(reason), "{set}: reason should mention {reason:?}: {e}");
+    }
+}
 
 #[test]
 fn bad_values_name_their_key() {
