@@ -3,28 +3,13 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
-use std::sync::Arc;
 use std::time::Instant;
 
 use clap::{Parser, Subcommand};
 
-// Output that never panics: when the coupler is gone its pipes are closed,
-// and a panic on a write would skip finishing the recording.
-macro_rules! say {
-    ($($t:tt)*) => {{
-        use std::io::Write as _;
-        let _ = writeln!(std::io::stdout().lock(), $($t)*);
-    }};
-}
-macro_rules! tell {
-    ($($t:tt)*) => {{
-        use std::io::Write as _;
-        let _ = writeln!(std::io::stderr().lock(), $($t)*);
-    }};
-}
-
 use dem_proc::run::{run, Progress, RunError, RunOptions};
-use schemas::{Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
+use schemas::process::{die_with_parent, progress_line, stop_flag};
+use schemas::{say, tell, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
 
 #[derive(Parser)]
 #[command(name = "dem_proc", version, about = "3D DEM solver process (spheres, Ceccato et al. 2020 contact law)")]
@@ -92,17 +77,14 @@ struct Reporter {
 impl Progress for Reporter {
     fn deposition(&mut self, t: f64, t_max: f64) {
         if self.json {
-            say!(
-                "{{\"event\":\"progress\",\"phase\":\"deposition\",\"t\":{t},\"t_end\":{t_max},\"wall\":{}}}",
-                self.started.elapsed().as_secs_f64()
-            );
+            say!("{}", progress_line("deposition", t, t_max, 0, self.started.elapsed().as_secs_f64()));
         } else {
             tell!("deposition: t = {t:.4} s");
         }
     }
     fn collapse(&mut self, t: f64, t_end: f64, steps: u64) {
         if self.json {
-            say!("{{\"event\":\"progress\",\"phase\":\"collapse\",\"t\":{t},\"t_end\":{t_end},\"steps\":{steps},\"wall\":{}}}", self.started.elapsed().as_secs_f64());
+            say!("{}", progress_line("collapse", t, t_end, steps, self.started.elapsed().as_secs_f64()));
         } else {
             tell!(
                 "collapse: t = {t:.4} / {t_end} s, {steps} steps, {:.1} s wall",
@@ -200,13 +182,13 @@ fn main() -> ExitCode {
             result.err().unwrap_or(ExitCode::SUCCESS)
         }
         Command::Run { scene, out, set, threads, no_record, progress_json, supervised } => {
-            let stop = Arc::new(AtomicBool::new(false));
-            for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-                if let Err(e) = signal_hook::flag::register(sig, Arc::clone(&stop)) {
+            let stop = match stop_flag() {
+                Ok(s) => s,
+                Err(e) => {
                     tell!("dem_proc: cannot install signal handler: {e}");
                     return ExitCode::FAILURE;
                 }
-            }
+            };
             if supervised {
                 die_with_parent();
             }
@@ -248,19 +230,6 @@ fn main() -> ExitCode {
                     ExitCode::FAILURE
                 }
             }
-        }
-    }
-}
-
-/// Asks the kernel to send SIGTERM when the parent dies, so a killed coupler
-/// leaves no orphan solver (the SIGTERM handler then stops at a step boundary).
-fn die_with_parent() {
-    #[cfg(target_os = "linux")]
-    // SAFETY: prctl with PR_SET_PDEATHSIG only sets a flag on this process.
-    unsafe {
-        libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
-        if libc::getppid() == 1 {
-            libc::raise(libc::SIGTERM);
         }
     }
 }

@@ -225,8 +225,7 @@ impl World {
         let g = &self.grains;
         self.scratch.inv_mass = g.mass.iter().map(|m| 1.0 / m).collect();
         self.scratch.inv_inertia = g.mass.iter().zip(&g.radius).map(|(m, r)| 1.0 / (0.4 * m * r * r)).collect();
-        self.scratch.pair_props =
-            (0..g.len()).map(|p| [g.radius[p], g.mass[p], self.scratch.inv_inertia[p]]).collect();
+        self.scratch.pair_props = (0..g.len()).map(|p| [g.radius[p], g.mass[p], self.scratch.inv_inertia[p]]).collect();
     }
 
     pub fn len(&self) -> usize {

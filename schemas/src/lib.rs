@@ -7,6 +7,7 @@ pub mod error;
 pub mod measures;
 pub mod metrics;
 pub mod overrides;
+pub mod process;
 pub mod record;
 pub mod scene;
 pub mod summary;

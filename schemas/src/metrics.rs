@@ -31,3 +31,32 @@ pub struct DemMetrics {
     pub coordination_5: f64,
     pub coordination_6_or_more: f64,
 }
+
+/// `/lbm/metrics`, one per recorded frame.
+#[derive(Debug, Clone, Copy, Default, foxglove::Encode)]
+pub struct LbmMetrics {
+    /// Simulated time since the start of the run, s.
+    pub t: f64,
+    /// t / t_ref.
+    pub t_norm: f64,
+    /// Liquid mass (fluid cells + interface-cell masses + pending excess), kg.
+    pub liquid_mass: f64,
+    /// (mass − initial mass)/initial mass: zero to round-off when mass is conserved.
+    pub liquid_mass_change: f64,
+    /// Kinetic energy of the liquid, J.
+    pub kinetic_energy: f64,
+    /// Liquid front X_f (0.5 % of the liquid mass beyond it), m.
+    pub liquid_front_x: f64,
+    /// (X_f − L0)/L0.
+    pub liquid_front_norm: f64,
+    /// Largest liquid speed, m/s.
+    pub max_speed: f64,
+    /// Largest |u|/c_s in lattice units (the watchdog's quantity).
+    pub max_mach: f64,
+    /// Cells updated per step (fluid + interface).
+    pub active_cells: f64,
+    /// Interface cells.
+    pub interface_cells: f64,
+    /// Throughput since the last frame, million lattice updates per second (active cells).
+    pub mlups: f64,
+}

@@ -30,6 +30,10 @@ pub mod topics {
     pub const DEM_SPHERES: &str = "/dem/spheres";
     pub const DEM_METRICS: &str = "/dem/metrics";
     pub const DEM_STATE: &str = "/dem/state";
+    pub const LBM_SURFACE: &str = "/lbm/surface";
+    pub const LBM_SLICE: &str = "/lbm/slice";
+    pub const LBM_METRICS: &str = "/lbm/metrics";
+    pub const LBM_STATE: &str = "/lbm/state";
     pub const LOG: &str = "/log";
 }
 

@@ -605,7 +605,10 @@ impl Scene {
                     if cells.is_finite() && cells < 3.0 {
                         v.fail(
                             "lbm.spacing",
-                            format!("leaves {cells:.1} cells along {} (at least 3 needed); lower it", ["x", "y", "z"][a]),
+                            format!(
+                                "leaves {cells:.1} cells along {} (at least 3 needed); lower it",
+                                ["x", "y", "z"][a]
+                            ),
                         );
                     }
                 }
