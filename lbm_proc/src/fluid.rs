@@ -191,19 +191,10 @@ impl<T: Real> Fluid<T> {
             .and_then(|n| n.checked_mul(dims[2]))
             .filter(|&n| n > 0 && n.checked_mul(Q).is_some())
             .ok_or(ConfigError::Dims(dims))?;
-        let state = FluidState {
-            dims,
-            faces,
-            flags: vec![flags::FLUID; ncells],
-            populations: vec![T::ZERO; Q * ncells],
-            step: 0,
-        };
-        let mut fluid = Self::from_state(state, params)?;
         let rest = crate::lattice::equilibrium(1.0, params.acceleration.map(|a| 0.5 * a));
-        for i in 0..Q {
-            fluid.state.populations[i * ncells..(i + 1) * ncells].fill(T::from_f64(rest[i] - W[i]));
-        }
-        Ok(fluid)
+        let populations = (0..Q * ncells).map(|k| T::from_f64(rest[k / ncells] - W[k / ncells])).collect();
+        let state = FluidState { dims, faces, flags: vec![flags::FLUID; ncells], populations, step: 0 };
+        Self::from_state(state, params)
     }
 
     /// Continues from a saved state.
@@ -266,6 +257,11 @@ impl<T: Real> Fluid<T> {
         let c = self.index(cell)?;
         self.state.flags[c] = flag;
         self.scratch.rows_stale = true;
+        if flag != flags::FLUID {
+            // The step never writes non-fluid cells; keeping them equal in
+            // both lattices makes the state independent of the step parity.
+            self.write_cell(c, &[0.0; Q]);
+        }
         Ok(())
     }
 
@@ -278,11 +274,17 @@ impl<T: Real> Fluid<T> {
         let c = self.index(cell)?;
         let a = self.params.acceleration;
         let feq = crate::lattice::equilibrium(rho, [u[0] + 0.5 * a[0], u[1] + 0.5 * a[1], u[2] + 0.5 * a[2]]);
+        self.write_cell(c, &std::array::from_fn(|i| feq[i] - W[i]));
+        Ok(())
+    }
+
+    /// Sets the stored f_i − w_i of cell index `c` in both lattices.
+    fn write_cell(&mut self, c: usize, g: &[f64; Q]) {
         let n = self.ncells();
         for i in 0..Q {
-            self.state.populations[i * n + c] = T::from_f64(feq[i] - W[i]);
+            self.state.populations[i * n + c] = T::from_f64(g[i]);
+            self.scratch.next[i * n + c] = T::from_f64(g[i]);
         }
-        Ok(())
     }
 
     /// Density and velocity of cell index `c` (lattice units), from the
@@ -675,5 +677,120 @@ fn collide<T: Real, const TRT: bool>(f: &mut [[T; LANES]; Q], lanes: usize, c: &
             f[2 * p + 1][l] = a;
             f[2 * p + 2][l] = b;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lattice::{equilibrium, CS2};
+
+    fn periodic<T: Real>(dims: [usize; 3], params: FluidParams) -> Fluid<T> {
+        Fluid::new(dims, [Faces::Periodic; 3], params).expect("valid parameters")
+    }
+
+    #[test]
+    fn uniform_flow_is_a_fixed_point_of_the_kernel() {
+        // A uniform equilibrium has no gradients: streaming moves identical
+        // cells and Π^neq = 0, so collision must return f^eq exactly. This
+        // pins the kernel's hand-written moments, weights and equilibrium to
+        // lattice::equilibrium.
+        let u = [0.05, -0.03, 0.02];
+        for collision in [Collision::Bgk, Collision::TRT_3_16] {
+            let params = FluidParams { tau: 0.53, collision, smagorinsky: 0.16, acceleration: [0.0; 3] };
+            let mut fluid = periodic::<f64>([3, 2, 2], params);
+            for c in 0..12 {
+                fluid.set_equilibrium([c % 3, (c / 3) % 2, c / 6], 1.02, u).expect("in box");
+            }
+            for _ in 0..5 {
+                fluid.step();
+            }
+            let feq = equilibrium(1.02, u);
+            let n = fluid.ncells();
+            for i in 0..Q {
+                for c in 0..n {
+                    let f = fluid.state().populations[i * n + c] + W[i];
+                    assert!((f - feq[i]).abs() < 1e-15, "{collision:?} f_{i} = {f}, f_eq = {}", feq[i]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn body_force_adds_exactly_a_per_step() {
+        // Periodic and uniform: Guo forcing must give du/dt = a and keep ρ.
+        let a = [1e-5, -2e-5, 3e-5];
+        for collision in [Collision::Bgk, Collision::TRT_3_16] {
+            let params = FluidParams { tau: 0.7, collision, smagorinsky: 0.16, acceleration: a };
+            let mut fluid = periodic::<f64>([2, 2, 2], params);
+            for step in 1..=10 {
+                fluid.step();
+                let (rho, u) = fluid.moments([1, 0, 1]).expect("in box");
+                assert!((rho - 1.0).abs() < 1e-14);
+                for d in 0..3 {
+                    assert!((u[d] - step as f64 * a[d]).abs() < 1e-15, "{collision:?} step {step}: u = {u:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn bad_parameters_are_errors_not_panics() {
+        let faces = [Faces::Periodic; 3];
+        assert_eq!(Fluid::<f32>::new([4, 4, 4], faces, FluidParams::new(0.5)).err(), Some(ConfigError::Tau(0.5)));
+        let p = FluidParams { smagorinsky: -0.1, ..FluidParams::new(0.6) };
+        assert!(matches!(Fluid::<f32>::new([4, 4, 4], faces, p), Err(ConfigError::Smagorinsky(_))));
+        let p = FluidParams { collision: Collision::Trt { magic: f64::NAN }, ..FluidParams::new(0.6) };
+        assert!(matches!(Fluid::<f32>::new([4, 4, 4], faces, p), Err(ConfigError::Magic(_))));
+        assert!(matches!(Fluid::<f32>::new([0, 4, 4], faces, FluidParams::new(0.6)), Err(ConfigError::Dims(_))));
+        let mut fluid = periodic::<f32>([4, 4, 4], FluidParams::new(0.6));
+        assert!(matches!(fluid.set_flag([4, 0, 0], flags::WALL), Err(ConfigError::OutOfBox { .. })));
+        let mut state = fluid.state().clone();
+        state.populations.pop();
+        assert!(matches!(Fluid::from_state(state, FluidParams::new(0.6)), Err(ConfigError::State(_))));
+    }
+
+    #[test]
+    fn watchdog_names_the_cell_the_quantity_and_the_fix() {
+        let mut fluid = periodic::<f32>([6, 5, 4], FluidParams::new(0.6));
+        assert_eq!(fluid.check(&WatchdogLimits::default()), Ok(()));
+        fluid.set_equilibrium([4, 3, 2], 1.0, [0.2, 0.0, 0.0]).expect("in box");
+        let e = fluid.check(&WatchdogLimits::default()).expect_err("Mach 0.35");
+        assert_eq!((e.cell, e.quantity), ([4, 3, 2], Quantity::Mach));
+        assert!((e.value - 0.2 / CS2.sqrt()).abs() < 1e-6);
+        fluid.set_equilibrium([1, 1, 1], 2.5, [0.0; 3]).expect("in box");
+        let e = fluid.check(&WatchdogLimits::default()).expect_err("density");
+        assert_eq!((e.cell, e.quantity), ([1, 1, 1], Quantity::Density), "lowest cell index first");
+        let n = fluid.ncells();
+        fluid.state.populations[7 * n] = f32::NAN;
+        let e = fluid.check(&WatchdogLimits::default()).expect_err("NaN");
+        assert_eq!((e.cell, e.quantity), ([0, 0, 0], Quantity::Population(7)));
+        let msg = e.to_string();
+        assert!(msg.contains("cell (0, 0, 0)") && msg.contains("f_7") && msg.contains("Smagorinsky"), "{msg}");
+    }
+
+    #[test]
+    fn results_do_not_depend_on_thread_count_and_restart_is_exact() {
+        let params = FluidParams { acceleration: [1e-5, 0.0, -2e-5], ..FluidParams::new(0.52) };
+        let mut fluid = Fluid::<f32>::new([20, 6, 9], [Faces::Periodic, Faces::Walls, Faces::Walls], params)
+            .expect("valid parameters");
+        fluid.set_flag([5, 2, 4], flags::WALL).expect("in box");
+        for c in 0..fluid.ncells() {
+            let (x, y, z) = (c % 20, (c / 20) % 6, c / 120);
+            let u = [0.03 * (y as f64 * 0.7).sin(), 0.02 * (x as f64 * 0.3).cos(), 0.01 * (z as f64).sin()];
+            fluid.set_equilibrium([x, y, z], 1.0, u).expect("in box");
+        }
+        let run = |threads: usize, mut f: Fluid<f32>, steps: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            pool.install(|| (0..steps).for_each(|_| f.step()));
+            f
+        };
+        let one = run(1, fluid.clone(), 40);
+        let two = run(2, fluid.clone(), 40);
+        assert!(one.state() == two.state(), "1 and 2 threads differ");
+        let half = run(2, fluid, 17);
+        let restarted = Fluid::from_state(half.state().clone(), *half.params()).expect("valid state");
+        let resumed = run(2, restarted, 23);
+        assert!(resumed.state() == one.state(), "restart from a snapshot is not exact");
     }
 }
