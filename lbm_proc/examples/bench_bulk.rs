@@ -15,8 +15,8 @@ fn main() {
         dims[0], dims[1], dims[2]
     );
     let configs = [
-        ("BGK, C = 0", FluidParams { collision: Collision::Bgk, smagorinsky: 0.0, ..FluidParams::new(0.6) }),
-        ("TRT 3/16 + Smagorinsky 0.16", FluidParams::new(0.6)),
+        ("BGK, C = 0", FluidParams { smagorinsky: 0.0, ..FluidParams::new(0.6) }),
+        ("TRT 3/16 + Smagorinsky 0.16", FluidParams { collision: Collision::TRT_3_16, ..FluidParams::new(0.6) }),
     ];
     for threads in [1, 2] {
         let pool = match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {

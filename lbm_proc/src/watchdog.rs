@@ -58,8 +58,10 @@ impl Instability {
                  raise the Smagorinsky constant, switch to TRT, or lower the time step"
             }
             Quantity::Density => {
-                "compressibility error too large (Mach or gravity head too high in lattice units): \
-                 lower the time step, or refine the grid keeping the time step"
+                "density far outside [min, max] means the collision lost stability (raise the Smagorinsky \
+                 constant, or use BGK rather than TRT near tau = 1/2); slightly outside means the \
+                 compressibility error is too large (Mach or gravity head too high in lattice units): \
+                 lower the time step"
             }
             Quantity::Mach => {
                 "flow too fast for the lattice: lower the time step (u_L = u dt/dx), \
