@@ -1,0 +1,22 @@
+//! D3Q19 lattice Boltzmann fluid for the DEM–LBM method of Ceccato et al. 2020 (§3.1).
+//!
+//! * [`units`]: the one SI ↔ lattice converter, τ from viscosity;
+//! * [`lattice`]: D3Q19 velocities, weights, opposites, equilibrium;
+//! * [`fluid`]: the state and its fused stream–collide step (BGK or TRT,
+//!   Smagorinsky Eq. 4, Guo forcing, half-way bounce-back, periodic faces);
+//! * [`watchdog`]: the stability check with a typed diagnosis;
+//! * [`real`]: the population float type (f32 default, f64 for comparison);
+//! * [`bench`]: bulk throughput and memory bandwidth measurement.
+//!
+//! Everything inside is in lattice units (Δx = Δt = ρ0 = 1). See `docs/lbm.md`.
+
+pub mod bench;
+pub mod fluid;
+pub mod lattice;
+pub mod real;
+pub mod units;
+pub mod watchdog;
+
+pub use fluid::{Collision, Faces, Fluid, FluidParams, FluidState};
+pub use units::Units;
+pub use watchdog::{Instability, WatchdogLimits};
