@@ -191,7 +191,9 @@ pub struct LbmSpec {
     /// Smagorinsky constant C of Eq. 4; 0 switches the eddy viscosity off. Default 0.16.
     #[serde(default = "default_smagorinsky")]
     pub smagorinsky: f64,
-    /// Collision operator. Default `trt`.
+    /// Collision operator. Default `bgk`: at the paper's τ = 0.50067 it
+    /// survives even without Smagorinsky, where TRT with Λ = 3/16 blows up
+    /// (`lbm_proc/tests/stability.rs`).
     #[serde(default)]
     pub collision: Collision,
     /// TRT magic parameter Λ = (τ+ − ½)(τ− − ½). Default 3/16 (bounce-back walls exactly mid-link).
@@ -217,9 +219,9 @@ fn default_mach_limit() -> f64 {
 #[serde(rename_all = "snake_case")]
 pub enum Collision {
     /// Single relaxation time (the paper's).
-    Bgk,
-    /// Two relaxation times (Ginzburg): same viscosity, damped ghost modes.
     #[default]
+    Bgk,
+    /// Two relaxation times (Ginzburg): walls exactly mid-link with Λ = 3/16.
     Trt,
 }
 

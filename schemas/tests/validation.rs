@@ -116,7 +116,7 @@ fn lbm_table_defaults_and_errors() {
     let text = format!("{VALID}\n{WATER}");
     let s = load(&text, &[]).unwrap();
     let lbm = s.lbm();
-    assert_eq!((lbm.smagorinsky, lbm.collision, lbm.trt_magic), (0.16, Collision::Trt, 3.0 / 16.0));
+    assert_eq!((lbm.smagorinsky, lbm.collision, lbm.trt_magic), (0.16, Collision::Bgk, 3.0 / 16.0));
     let without = VALID.to_string() + "\n" + &WATER[..WATER.find("[lbm]").unwrap()];
     let e = load(&without, &[]).unwrap_err();
     assert!(e.names_key("lbm") && e.to_string().contains("spacing"), "{e}");
