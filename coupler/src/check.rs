@@ -19,7 +19,7 @@ pub fn print(scene: &Scene) {
         method.name(),
         match method {
             Method::DemDry => "dem_proc",
-            Method::LbmFluid => "lbm_proc (not available yet)",
+            Method::LbmFluid => "lbm_proc",
             Method::DemLbm => "dem_proc + lbm_proc (not available yet)",
         }
     );
@@ -112,7 +112,7 @@ pub fn print(scene: &Scene) {
         }
     }
     if !s.fluids.is_empty() {
-        warnings.push("fluid blocks are validated but not simulated yet (lbm_proc comes with the LBM issue)".into());
+        print_lbm(scene, &mut warnings);
     }
     if warnings.is_empty() {
         println!("warnings     none");
@@ -120,4 +120,77 @@ pub fn print(scene: &Scene) {
     for w in warnings {
         println!("warning      {w}");
     }
+}
+
+/// Lattice updates per second of the LBM on this machine, 2 threads
+/// (docs/BENCHMARKS.md); only used to print a rough duration.
+const MEASURED_LBM_RATE: f64 = 4.0e7;
+
+fn print_lbm(scene: &Scene, warnings: &mut Vec<String>) {
+    let s = &scene.spec;
+    let lbm = scene.lbm();
+    let fluid = &s.fluids[0];
+    let (dx, dt) = (lbm.spacing, lbm.time_step);
+    let nu = fluid.viscosity / fluid.density;
+    let Ok(units) = lbm_proc::Units::new(dx, dt, fluid.density) else {
+        warnings.push("lattice units cannot be built from lbm.spacing and lbm.time_step".into());
+        return;
+    };
+    let tau = units.tau_from_viscosity(nu).unwrap_or(f64::NAN);
+    let nu_l = units.viscosity_to_lattice(nu);
+    let cells = |lo: f64, hi: f64| ((hi - lo) / dx).round().max(1.0);
+    let d = &s.domain;
+    let dims = [0, 1, 2].map(|a| cells(d.min[a], d.max[a]));
+    let ncells = dims[0] * dims[1] * dims[2];
+    let liquid: f64 =
+        s.fluids.iter().map(|f| (0..3).map(|a| cells(f.region.min[a], f.region.max[a])).product::<f64>()).sum();
+    println!(
+        "lattice      {} x {} x {} = {:.3e} cells of {:.3e} m, time step {:.3e} s; liquid {:.3e} cells at the start",
+        dims[0], dims[1], dims[2], ncells, dx, dt, liquid
+    );
+    println!(
+        "relaxation   tau0 = {tau:.6} (nu = {nu:.3e} m²/s = {nu_l:.3e} lattice), {:?}, Smagorinsky C = {}",
+        lbm.collision, lbm.smagorinsky
+    );
+    // Eq. 4: nu_t = (C dx)^2 |S|, at the collapse's own shear rate sqrt(g/H0) and at 100 1/s.
+    let g = scene.gravity_magnitude();
+    let h0 = s.analysis.column_height;
+    for shear in [(g / h0).sqrt(), 100.0] {
+        let nu_t = (lbm.smagorinsky * dx).powi(2) * shear;
+        println!(
+            "viscosity    at shear {shear:.1} 1/s: nu = {nu:.3e} molecular + {nu_t:.3e} eddy = {:.3e} m²/s (tau {:.6})",
+            nu + nu_t,
+            units.tau_from_viscosity(nu + nu_t).unwrap_or(f64::NAN)
+        );
+    }
+    let cs = (1.0_f64 / 3.0).sqrt();
+    let wave = (g * h0).sqrt();
+    for (what, speed) in [("sqrt(g H0)", wave), ("2 sqrt(g H0) (dam-break front)", 2.0 * wave)] {
+        let mach = units.velocity_to_lattice(speed) / cs;
+        println!("mach         {what} = {speed:.3} m/s -> Mach {mach:.3} in lattice units");
+        if mach > lbm.mach_limit {
+            warnings.push(format!(
+                "{what} gives Mach {mach:.2}, above lbm.mach_limit = {}: the watchdog may stop the run; lower lbm.time_step",
+                lbm.mach_limit
+            ));
+        } else if mach > 0.3 {
+            warnings.push(format!(
+                "{what} gives Mach {mach:.2}: compressibility errors grow above ~0.3; lower lbm.time_step for accuracy"
+            ));
+        }
+    }
+    if tau < 0.51 && lbm.smagorinsky == 0.0 {
+        warnings.push(format!(
+            "tau0 = {tau:.5} with no eddy viscosity: BGK is at the edge of stability; set lbm.smagorinsky (0.16)"
+        ));
+    }
+    // Two f32 lattices, flags, f64 mass and fill per cell.
+    let bytes_per_cell = 19.0 * 4.0 * 2.0 + 1.0 + 16.0;
+    let steps = (s.output.end_time / dt).ceil();
+    println!(
+        "cost         {steps:.0} steps; memory ~{:.0} MB; ~{:.0} s at {:.0e} lattice updates/s if the liquid stays at its initial volume",
+        ncells * bytes_per_cell / 1e6,
+        steps * liquid / MEASURED_LBM_RATE,
+        MEASURED_LBM_RATE
+    );
 }
