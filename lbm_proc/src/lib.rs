@@ -5,6 +5,7 @@
 //! * [`fluid`]: the state and its fused stream–collide step (BGK or TRT,
 //!   Smagorinsky Eq. 4, Guo forcing, half-way bounce-back, periodic faces);
 //! * [`watchdog`]: the stability check with a typed diagnosis;
+//! * [`setup`]: a checked scene (SI) on the lattice: box, units, gates, liquid;
 //! * [`real`]: the population float type (f32 default, f64 for comparison);
 //! * [`bench`]: bulk throughput and memory bandwidth measurement.
 //!
@@ -14,6 +15,7 @@ pub mod bench;
 pub mod fluid;
 pub mod lattice;
 pub mod real;
+pub mod setup;
 pub mod units;
 pub mod watchdog;
 
