@@ -101,19 +101,27 @@ fn send_signal(child: &Child, sig: i32) {
     }
 }
 
+/// The one solver process a method runs: binary name and the short name of its outputs.
+fn solver_for(method: Method) -> Option<(&'static str, &'static str)> {
+    match method {
+        Method::DemDry => Some(("dem_proc", "dem")),
+        Method::LbmFluid => Some(("lbm_proc", "lbm")),
+        Method::DemLbm => None,
+    }
+}
+
 pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool) -> ExitCode {
     let started = Instant::now();
     let method = scene.method();
-    if method != Method::DemDry {
+    let Some((solver, short)) = solver_for(method) else {
         eprintln!(
-            "coupler: scene {} needs the {} method ({}), which this build does not have yet: only dry DEM scenes (particles, no fluids) run so far",
+            "coupler: scene {} needs the {} method (dem_proc + lbm_proc coupled), which this build does not have yet: dry DEM scenes and fluid-only LBM scenes run so far",
             scene.spec.scene.name,
             method.name(),
-            if method == Method::LbmFluid { "lbm_proc" } else { "dem_proc + lbm_proc" }
         );
         return ExitCode::from(EXIT_BAD_SCENE as u8);
-    }
-    let dem_bin = match sibling_binary("dem_proc") {
+    };
+    let solver_bin = match sibling_binary(solver) {
         Ok(p) => p,
         Err(e) => {
             eprintln!("coupler: {e}");
@@ -125,7 +133,7 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
         return ExitCode::FAILURE;
     }
     // A reused output directory must not show a previous run's results as this one's.
-    for stale in ["run.mcap", "dem.mcap", "summary.json", "dem_summary.json"] {
+    for stale in ["run.mcap".to_string(), format!("{short}.mcap"), "summary.json".into(), format!("{short}_summary.json")] {
         let path = out.join(stale);
         if path.exists() {
             if let Err(e) = std::fs::remove_file(&path) {
@@ -141,7 +149,7 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     }
     // Relative explicit-sphere files resolve against the original scene directory;
     // the resolved scene embeds them instead.
-    let mut cmd = Command::new(&dem_bin);
+    let mut cmd = Command::new(&solver_bin);
     cmd.arg("run").arg(&scene_file).arg("--out").arg(&out).arg("--progress-json").arg("--supervised");
     if let Some(n) = threads {
         cmd.arg("--threads").arg(n.to_string());
@@ -150,16 +158,11 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     let mut child = match cmd.spawn() {
         Ok(c) => c,
         Err(e) => {
-            eprintln!("coupler: cannot start {}: {e}", dem_bin.display());
+            eprintln!("coupler: cannot start {}: {e}", solver_bin.display());
             return ExitCode::FAILURE;
         }
     };
-    eprintln!(
-        "coupler: running {} ({}) with dem_proc, output in {}",
-        scene.spec.scene.name,
-        method.name(),
-        out.display()
-    );
+    eprintln!("coupler: running {} ({}) with {solver}, output in {}", scene.spec.scene.name, method.name(), out.display());
 
     let mut stdout = BufReader::new(child.stdout.take().expect("piped")).lines();
     let mut stderr = BufReader::new(child.stderr.take().expect("piped")).lines();
@@ -188,8 +191,8 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
                 Ok(Some(l)) => bar.println(&l),
                 _ => stderr_open = false,
             },
-            _ = sigint.recv() => { interrupts += 1; forward(&child, interrupts, &bar); }
-            _ = sigterm.recv() => { interrupts += 1; forward(&child, interrupts, &bar); }
+            _ = sigint.recv() => { interrupts += 1; forward(&child, solver, interrupts, &bar); }
+            _ = sigterm.recv() => { interrupts += 1; forward(&child, solver, interrupts, &bar); }
             st = child.wait() => break st,
         }
     };
@@ -204,13 +207,13 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     let status = match status {
         Ok(s) => s,
         Err(e) => {
-            eprintln!("coupler: lost track of dem_proc: {e}");
+            eprintln!("coupler: lost track of {solver}: {e}");
             return ExitCode::FAILURE;
         }
     };
 
-    let recording = collect_recording(&out);
-    let summary = finish_summary(&out, started.elapsed().as_secs_f64(), interrupts > 0 && !status.success());
+    let recording = collect_recording(&out, short);
+    let summary = finish_summary(&out, short, started.elapsed().as_secs_f64(), interrupts > 0 && !status.success());
     let recorded = recording.exists();
     match status.code() {
         Some(0) => match &summary {
@@ -219,7 +222,7 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
                 ExitCode::SUCCESS
             }
             None => {
-                eprintln!("coupler: dem_proc finished but left no readable summary in {}", out.display());
+                eprintln!("coupler: {solver} finished but left no readable summary in {}", out.display());
                 ExitCode::FAILURE
             }
         },
@@ -235,11 +238,11 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
             ExitCode::from(EXIT_INTERRUPTED as u8)
         }
         Some(c) if c == EXIT_BAD_SCENE => {
-            eprintln!("coupler: dem_proc rejected the scene (exit status 2); see the message above");
+            eprintln!("coupler: {solver} rejected the scene (exit status 2); see the message above");
             ExitCode::from(EXIT_BAD_SCENE as u8)
         }
         _ if interrupts > 1 => {
-            eprintln!("coupler: dem_proc killed after a second interrupt; {} may lack its summary section (streaming MCAP readers still read it)", recording.display());
+            eprintln!("coupler: {solver} killed after a second interrupt; {} may lack its summary section (streaming MCAP readers still read it)", recording.display());
             ExitCode::from(EXIT_INTERRUPTED as u8)
         }
         code => {
@@ -251,7 +254,7 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
                 }
             };
             eprintln!(
-                "coupler: dem_proc failed ({how}); see its message above. What was recorded so far is in {} (readable by streaming MCAP readers)",
+                "coupler: {solver} failed ({how}); see its message above. What was recorded so far is in {} (readable by streaming MCAP readers)",
                 recording.display()
             );
             ExitCode::FAILURE
@@ -259,24 +262,24 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     }
 }
 
-fn forward(child: &Child, count: u32, bar: &Bar) {
+fn forward(child: &Child, solver: &str, count: u32, bar: &Bar) {
     if count == 1 {
         bar.println("coupler: stopping at the next step boundary (press Ctrl-C again to kill)");
         send_signal(child, libc::SIGINT);
     } else {
-        bar.println("coupler: killing dem_proc");
+        bar.println(&format!("coupler: killing {solver}"));
         send_signal(child, libc::SIGKILL);
     }
 }
 
 /// With one solver process its recording is the run's recording.
-fn collect_recording(out: &Path) -> PathBuf {
+fn collect_recording(out: &Path, short: &str) -> PathBuf {
     let run = out.join("run.mcap");
-    let dem = out.join("dem.mcap");
-    if dem.exists() {
-        if let Err(e) = std::fs::rename(&dem, &run) {
-            eprintln!("coupler: cannot move {} to {}: {e}", dem.display(), run.display());
-            return dem;
+    let solver = out.join(format!("{short}.mcap"));
+    if solver.exists() {
+        if let Err(e) = std::fs::rename(&solver, &run) {
+            eprintln!("coupler: cannot move {} to {}: {e}", solver.display(), run.display());
+            return solver;
         }
     }
     run
@@ -284,8 +287,8 @@ fn collect_recording(out: &Path) -> PathBuf {
 
 /// Adds the coupler's fields to the solver's summary and writes `summary.json`.
 /// Kept as JSON values: NaN measures arrive as null and stay null.
-fn finish_summary(out: &Path, wall_total: f64, interrupted: bool) -> Option<serde_json::Value> {
-    let solver_summary = out.join("dem_summary.json");
+fn finish_summary(out: &Path, short: &str, wall_total: f64, interrupted: bool) -> Option<serde_json::Value> {
+    let solver_summary = out.join(format!("{short}_summary.json"));
     let text = std::fs::read_to_string(&solver_summary).ok()?;
     let mut summary: serde_json::Value = match serde_json::from_str(&text) {
         Ok(v) => v,
@@ -309,21 +312,25 @@ fn finish_summary(out: &Path, wall_total: f64, interrupted: bool) -> Option<serd
 
 fn report(s: &serde_json::Value, out: &Path) {
     let num = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
-    let rate = num(&s["throughput"]["particle_steps_per_s"]);
+    let rate = match (s["throughput"]["particle_steps_per_s"].as_f64(), s["throughput"]["cell_updates_per_s"].as_f64()) {
+        (Some(p), _) => format!("{p:.3e} particle-steps/s"),
+        (None, Some(c)) => format!("{:.1} MLUPS", c / 1e6),
+        (None, None) => "no throughput".into(),
+    };
     eprintln!(
-        "coupler: {} ({}) after t = {:.4} s = {:.2} t_ref, {} steps in {:.1} s, {:.3e} particle-steps/s",
+        "coupler: {} ({}) after t = {:.4} s = {:.2} t_ref, {} steps in {:.1} s, {rate}",
         s["scene"].as_str().unwrap_or("?"),
         s["status"].as_str().unwrap_or("?"),
         num(&s["sim_time"]),
         num(&s["sim_time"]) / num(&s["t_ref"]),
         s["steps"],
         num(&s["wall_seconds"]),
-        rate
     );
-    eprintln!(
-        "coupler: runout (L_f - L0)/L0 = {:.4}; initial porosity {:.4}",
-        num(&s["runout"]),
-        num(&s["porosity_initial"])
-    );
+    if let Some(runout) = s["runout"].as_f64() {
+        eprintln!("coupler: runout (L_f - L0)/L0 = {runout:.4}; initial porosity {:.4}", num(&s["porosity_initial"]));
+    }
+    if let Some(front) = s["liquid_front"].as_array().and_then(|f| f.last()) {
+        eprintln!("coupler: liquid front (X_f - L0)/L0 = {:.4} at the end", num(&front["x_norm"]));
+    }
     eprintln!("coupler: wrote {} and {}", out.join("run.mcap").display(), out.join("summary.json").display());
 }
