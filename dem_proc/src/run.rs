@@ -341,6 +341,7 @@ pub fn run(
         steps: world.step_count,
         throughput: Throughput {
             particle_steps_per_s: Some(particle_steps / wall.max(1e-9)),
+            cell_updates_per_s: None,
             wall_per_sim_second: wall / world.time.max(1e-12),
         },
         t_ref,
@@ -366,6 +367,8 @@ pub fn run(
             recording_fraction: frames.seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),
         }),
+        liquid_front: Vec::new(),
+        lbm: None,
         wall_seconds_total: None,
     };
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");

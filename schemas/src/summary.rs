@@ -41,8 +41,14 @@ pub struct RunSummary {
     /// deposit block (its region is the column L0 × W × H0 in the lab scenes);
     /// null for explicit packings.
     pub porosity_initial: f64,
+    /// Liquid front over time (0.5 % of the liquid mass beyond it), same form
+    /// as `front`; empty for methods without liquid.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub liquid_front: Vec<FrontSample>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dem: Option<DemDetails>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lbm: Option<LbmDetails>,
     /// Wall time of the whole run as the coupler saw it, s (set by the coupler).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub wall_seconds_total: Option<f64>,
@@ -53,6 +59,10 @@ pub struct Throughput {
     /// DEM particle-steps per second of wall time.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub particle_steps_per_s: Option<f64>,
+    /// LBM cell updates per second of wall time, counting only the cells
+    /// actually updated (fluid and interface).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cell_updates_per_s: Option<f64>,
     /// Wall seconds per simulated second.
     pub wall_per_sim_second: f64,
 }
@@ -79,6 +89,30 @@ pub struct DemDetails {
     /// Mean coordination number at the start and the end.
     pub coordination_initial: f64,
     pub coordination_final: f64,
+    /// Fraction of the run's wall time spent handing frames to the recorder.
+    pub recording_fraction: f64,
+    pub threads: usize,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LbmDetails {
+    /// Cells along x, y, z and the lattice spacing, m, and time step, s.
+    pub dims: [usize; 3],
+    pub spacing: f64,
+    pub time_step: f64,
+    /// Molecular relaxation time τ0.
+    pub tau: f64,
+    pub collision: String,
+    pub smagorinsky: f64,
+    /// Fluid + interface cells at the start and the end.
+    pub active_cells_initial: usize,
+    pub active_cells_final: usize,
+    /// Liquid mass at the start and the end, kg, and (end − start)/start.
+    pub mass_initial: f64,
+    pub mass_final: f64,
+    pub mass_relative_change: f64,
+    /// Largest |u|/c_s seen on the recorded frames.
+    pub max_mach: f64,
     /// Fraction of the run's wall time spent handing frames to the recorder.
     pub recording_fraction: f64,
     pub threads: usize,
