@@ -17,6 +17,6 @@ pub mod real;
 pub mod units;
 pub mod watchdog;
 
-pub use fluid::{Collision, Faces, Fluid, FluidParams, FluidState};
+pub use fluid::{Collision, Faces, Fluid, FluidParams, FluidState, InterfaceCell, Sample};
 pub use units::Units;
 pub use watchdog::{Instability, WatchdogLimits};
