@@ -122,7 +122,13 @@ impl FluidParams {
     /// matches Eq. 4 (tests/stability.rs, tests/flows.rs); TRT 3/16 is the
     /// choice when the wall position matters (exact Poiseuille).
     pub fn new(tau: f64) -> Self {
-        FluidParams { tau, collision: Collision::Bgk, smagorinsky: 0.16, acceleration: [0.0; 3], kappa: default_kappa() }
+        FluidParams {
+            tau,
+            collision: Collision::Bgk,
+            smagorinsky: 0.16,
+            acceleration: [0.0; 3],
+            kappa: default_kappa(),
+        }
     }
 
     fn validate(&self) -> Result<(), ConfigError> {
@@ -1030,6 +1036,26 @@ mod tests {
         assert_eq!((e.cell, e.quantity), ([0, 0, 0], Quantity::Population(7)));
         let msg = e.to_string();
         assert!(msg.contains("cell (0, 0, 0)") && msg.contains("f_7") && msg.contains("Smagorinsky"), "{msg}");
+    }
+
+    #[test]
+    fn watchdog_checks_the_interface_fill_and_set_up_errors_are_typed() {
+        let params = FluidParams { acceleration: [0.0, 0.0, -1e-4], ..FluidParams::new(0.6) };
+        let mut fluid = Fluid::<f32>::new([6, 5, 8], [Faces::Walls; 3], params).expect("valid parameters");
+        fluid.init_liquid(|c| c[2] < 4).expect("in box");
+        assert_eq!(fluid.interface_cells(), 30, "one layer of 6 x 5 interface cells at z = 3");
+        assert_eq!(fluid.active_cells(), 120);
+        assert!((fluid.fill([2, 2, 3]).expect("in box") - 0.5).abs() < 1e-12);
+        assert_eq!(fluid.check(&WatchdogLimits::default()), Ok(()));
+        let c = (3 * 5 + 2) * 6 + 4;
+        fluid.state.mass[c] = 1.2;
+        let e = fluid.check(&WatchdogLimits::default()).expect_err("fill 1.2");
+        assert_eq!((e.cell, e.quantity), ([4, 2, 3], Quantity::Fill));
+        assert!(e.to_string().contains("interface fill"), "{e}");
+        assert_eq!(fluid.set_flag([0, 0, 0], flags::GAS), Err(ConfigError::Flag(flags::GAS)));
+        assert!(matches!(fluid.remove_walls(&[[1, 1, 1]]), Err(ConfigError::NotWall([1, 1, 1]))));
+        let p = FluidParams { kappa: 0.7, ..params };
+        assert_eq!(fluid.set_params(p), Err(ConfigError::Kappa(0.7)));
     }
 
     #[test]

@@ -91,7 +91,10 @@ fn describe(e: &Instability) -> String {
             format!("lattice density is {:.6} (allowed [{}, {}])", e.value, e.limits.min_density, e.limits.max_density)
         }
         Quantity::Mach => format!("Mach number |u|/c_s is {:.4} (allowed {})", e.value, e.limits.max_mach),
-        Quantity::Fill => format!("interface fill is {:.4} (allowed margin {} beyond [-kappa, 1 + kappa])", e.value, e.limits.fill_margin),
+        Quantity::Fill => format!(
+            "interface fill is {:.4} (allowed margin {} beyond [-kappa, 1 + kappa])",
+            e.value, e.limits.fill_margin
+        ),
     };
     format!("LBM unstable after step {}: at cell ({i}, {j}, {k}) {what}; fix: {}", e.step, e.fix())
 }

@@ -373,7 +373,9 @@ impl<T: Real> Fluid<T> {
                 (sign * ne).max(0.0)
             };
             let receivers = |flag: u8| {
-                (1..Q).filter_map(move |i| fluid.neighbour(c, i).filter(|&nb| fluid.state.flags[nb] == flag).map(|nb| (i, nb)))
+                (1..Q).filter_map(move |i| {
+                    fluid.neighbour(c, i).filter(|&nb| fluid.state.flags[nb] == flag).map(|nb| (i, nb))
+                })
             };
             let start = l.shares.len();
             let total: f64 = receivers(flags::INTERFACE).map(|(i, _)| weight(i)).sum();
@@ -448,7 +450,9 @@ impl<T: Real> Fluid<T> {
     fn normal(&self, c: usize) -> [f64; 3] {
         let own = self.scratch.fill[c];
         let eps = |i: usize| {
-            self.neighbour(c, i).filter(|&nb| self.state.flags[nb] != flags::WALL).map_or(own, |nb| self.scratch.fill[nb])
+            self.neighbour(c, i)
+                .filter(|&nb| self.state.flags[nb] != flags::WALL)
+                .map_or(own, |nb| self.scratch.fill[nb])
         };
         // Directions 1..6 are +x, −x, +y, −y, +z, −z.
         let g = [-0.5 * (eps(1) - eps(2)), -0.5 * (eps(3) - eps(4)), -0.5 * (eps(5) - eps(6))];
