@@ -20,10 +20,10 @@
 //!   post-collision momentum), so no macroscopic field is written in the hot
 //!   loop;
 //! * one flag byte per cell ([`flags`]), and one class byte per x-row that
-//!   says whether the row holds liquid at all and whether its pulls can touch
-//!   a non-fluid cell. Rows with no liquid cost nothing, which is where the
-//!   free surface's gas cells will go; rows far from walls skip the per-cell
-//!   flag checks.
+//!   says whether the row holds liquid at all, whether it holds interface
+//!   cells, and whether its pulls can touch a non-fluid cell. Rows with no
+//!   liquid (gas above the free surface) cost nothing; rows far from walls
+//!   and the surface skip the per-cell flag checks.
 //!
 //! The free surface (mass tracking, [`free_surface`]) adds interface and gas
 //! cells: the kernel rebuilds the populations an interface cell pulls from

@@ -138,11 +138,11 @@ fn dam_break<T: Real>(
     let faces = [Faces::Walls, Faces::Periodic, Faces::Walls];
     let mut fluid = Fluid::<T>::new(dims, faces, params).expect("valid parameters");
     fluid.init_liquid(|c| c[0] < block[0] && c[2] < block[1]).expect("in box");
-    dam_break_in(fluid, steps, every)
+    dam_break_in(fluid, steps, every, &WatchdogLimits::default())
 }
 
 /// Runs a prepared liquid, sampling every `every` steps.
-fn dam_break_in<T: Real>(mut fluid: Fluid<T>, steps: usize, every: usize) -> DamBreak {
+fn dam_break_in<T: Real>(mut fluid: Fluid<T>, steps: usize, every: usize, limits: &WatchdogLimits) -> DamBreak {
     let g = -fluid.params().acceleration[2];
     let pe0 = potential_energy(&fluid, g);
     let mut out = DamBreak {
@@ -162,7 +162,7 @@ fn dam_break_in<T: Real>(mut fluid: Fluid<T>, steps: usize, every: usize) -> Dam
             last_active = fluid.active_cells();
         }
         if s % every == 0 {
-            if let Err(e) = fluid.check(&WatchdogLimits::default()) {
+            if let Err(e) = fluid.check(limits) {
                 panic!("{e}");
             }
             out.front.push((s, front(&fluid)));
@@ -262,7 +262,7 @@ fn paper_water_case_collapsing_block_stays_bounded() {
     let run = |steps: usize| -> (DamBreak, f64) {
         let mut fluid = Fluid::<f32>::new([48, 8, 24], faces, params).expect("valid parameters");
         fluid.init_liquid(|c| c[0] < 16 && c[2] < 20).expect("in box");
-        (dam_break_in(fluid, steps, 50), units.time_to_si(steps as f64))
+        (dam_break_in(fluid, steps, 50, &WatchdogLimits::default()), units.time_to_si(steps as f64))
     };
     let (r, t) = run(600);
     let g_l = -params.acceleration[2];
@@ -296,7 +296,12 @@ fn paper_water_case_full_block() {
     let mut fluid = Fluid::<f32>::new(dims, [Faces::Walls; 3], params).expect("valid parameters");
     fluid.init_liquid(|c| c[0] < block[0] && c[2] < block[1]).expect("in box");
     let started = std::time::Instant::now();
-    let r = dam_break_in(fluid, steps, 250);
+    // Ritter's front speed 2√(g h0) for h0 = 6 cm is 1.53 m/s, u_L = 0.204,
+    // Mach 0.35 at the paper's Δt: the default limit 0.3 stops this run at
+    // step 750 (0.06 s) at the front tip. Pure water at this Δt is past the
+    // watchdog's default; the paper's grain-laden fronts are far slower.
+    let limits = WatchdogLimits { max_mach: 0.4, ..WatchdogLimits::default() };
+    let r = dam_break_in(fluid, steps, 250, &limits);
     let fronts: Vec<String> = r
         .front
         .iter()
