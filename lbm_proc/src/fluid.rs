@@ -20,14 +20,15 @@
 //!   post-collision momentum), so no macroscopic field is written in the hot
 //!   loop;
 //! * one flag byte per cell ([`flags`]), and one class byte per x-row that
-//!   says whether the row holds liquid at all and whether its pulls can touch
-//!   a non-fluid cell. Rows with no liquid cost nothing, which is where the
-//!   free surface's gas cells will go; rows far from walls skip the per-cell
-//!   flag checks.
+//!   says whether the row holds liquid at all, whether it holds interface
+//!   cells, and whether its pulls can touch a non-fluid cell. Rows with no
+//!   liquid (gas above the free surface) cost nothing; rows far from walls
+//!   and the surface skip the per-cell flag checks.
 //!
-//! Later stages (free-surface mass exchange, particle forcing, Eq. 5) add
-//! per-cell arrays next to `populations` in [`FluidState`] and their own
-//! stages around `stream_collide`.
+//! The free surface (mass tracking, [`free_surface`]) adds interface and gas
+//! cells: the kernel rebuilds the populations an interface cell pulls from
+//! gas and accumulates its mass exchange in the same pass; conversions run
+//! after it. Particle forcing (Eq. 5) will add its own stage.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -36,12 +37,27 @@ use crate::lattice::{E, OPP, Q, W};
 use crate::real::Real;
 use crate::watchdog::{Instability, Quantity, WatchdogLimits};
 
-/// Cell flags. Values from 2 up are left for the free surface (interface, gas).
+mod free_surface;
+pub use free_surface::{InterfaceCell, Sample};
+
+/// Cell flags. Liquid cells (fluid, interface) have bit 0 clear, so the
+/// kernel tells "pull from here" from "bounce back" with one bit test.
 pub mod flags {
     /// A liquid cell: collides and streams.
     pub const FLUID: u8 = 0;
     /// A no-slip obstacle: links into it bounce back half-way.
     pub const WALL: u8 = 1;
+    /// A partly filled cell of the free surface: collides and streams, and
+    /// tracks its liquid mass m; populations pulled from gas are rebuilt.
+    pub const INTERFACE: u8 = 2;
+    /// An empty cell: stores nothing meaningful and is never computed.
+    pub const GAS: u8 = 3;
+
+    /// Fluid or interface: the cells that collide, stream and hold liquid.
+    #[inline(always)]
+    pub fn is_liquid(flag: u8) -> bool {
+        flag & 1 == 0
+    }
 }
 
 /// Cells per vector chunk of a row: long enough that each of the 38 streams
@@ -85,8 +101,18 @@ pub struct FluidParams {
     pub collision: Collision,
     /// Smagorinsky constant C of Eq. 4 (paper: 0.16); 0 switches the eddy viscosity off.
     pub smagorinsky: f64,
-    /// Body acceleration (gravity), lattice units; the force density is ρ a.
+    /// Body acceleration (gravity), lattice units; the force density is ρ a,
+    /// in interface cells too (docs/lbm.md, "Free surface").
     pub acceleration: [f64; 3],
+    /// Free-surface conversion margin κ: an interface cell fills when
+    /// m > (1 + κ)ρ and empties when m < −κρ (Thürey 2007: 1e-3). The margin
+    /// stops cells from toggling between states on round-off-sized flux.
+    #[serde(default = "default_kappa")]
+    pub kappa: f64,
+}
+
+fn default_kappa() -> f64 {
+    1e-3
 }
 
 impl FluidParams {
@@ -96,7 +122,13 @@ impl FluidParams {
     /// matches Eq. 4 (tests/stability.rs, tests/flows.rs); TRT 3/16 is the
     /// choice when the wall position matters (exact Poiseuille).
     pub fn new(tau: f64) -> Self {
-        FluidParams { tau, collision: Collision::Bgk, smagorinsky: 0.16, acceleration: [0.0; 3] }
+        FluidParams {
+            tau,
+            collision: Collision::Bgk,
+            smagorinsky: 0.16,
+            acceleration: [0.0; 3],
+            kappa: default_kappa(),
+        }
     }
 
     fn validate(&self) -> Result<(), ConfigError> {
@@ -114,6 +146,9 @@ impl FluidParams {
         if !self.acceleration.iter().all(|a| a.is_finite()) {
             return Err(ConfigError::Acceleration(self.acceleration));
         }
+        if !(0.0..0.5).contains(&self.kappa) {
+            return Err(ConfigError::Kappa(self.kappa));
+        }
         Ok(())
     }
 }
@@ -129,6 +164,12 @@ pub enum ConfigError {
     Magic(f64),
     #[error("body acceleration must be finite, got {0:?}")]
     Acceleration([f64; 3]),
+    #[error("free-surface conversion margin kappa must lie in [0, 0.5), got {0}")]
+    Kappa(f64),
+    #[error("set_flag takes FLUID or WALL (interface and gas come from init_liquid / remove_walls), got {0}")]
+    Flag(u8),
+    #[error("cell {0:?} is not a wall, so it cannot be removed")]
+    NotWall([usize; 3]),
     #[error("box dimensions must be >= 1 cell each, got {0:?}")]
     Dims([usize; 3]),
     #[error("cell {cell:?} lies outside the box {dims:?}")]
@@ -147,15 +188,27 @@ pub struct FluidState<T> {
     pub flags: Vec<u8>,
     /// Post-collision f_i − w_i, population i of cell c at `i * ncells + c`.
     pub populations: Vec<T>,
+    /// Liquid mass m of each interface cell (f64 whatever `T` is, so that
+    /// mass is conserved to f64 round-off); 0 in all other cells (a fluid
+    /// cell's mass is its density ρ).
+    pub mass: Vec<f64>,
+    /// Excess mass of conversions that found no interface neighbour to take
+    /// it; counted in [`Fluid::liquid_mass`], never dropped.
+    pub pending_excess: f64,
+    /// Liquid mass when the liquid was set up, for [`Fluid::mass_drift`].
+    pub reference_mass: Option<f64>,
     /// Steps taken.
     pub step: u64,
 }
 
 /// Row classes (bits of `Scratch::rows`).
-const ROW_ANY_FLUID: u8 = 1;
+/// The row holds a fluid or interface cell; rows without are skipped.
+const ROW_ANY_LIQUID: u8 = 1;
 const ROW_ALL_FLUID: u8 = 2;
 /// Every source row of every pull is all fluid: no per-cell wall checks needed.
 const ROW_SOURCES_FLUID: u8 = 4;
+/// The row holds an interface cell (reconstruction and mass exchange).
+const ROW_ANY_INTERFACE: u8 = 8;
 
 /// Buffers the step needs besides the state.
 #[derive(Debug, Clone)]
@@ -165,6 +218,16 @@ struct Scratch<T> {
     /// Class of each x-row, index `z * ny + y`.
     rows: Vec<u8>,
     rows_stale: bool,
+    /// Fill ε = m/ρ of every cell (1 fluid, 0 gas and wall) as of the end of
+    /// the last step: the old-level ε both sides of an interface–interface
+    /// link use, which makes the exchange antisymmetric.
+    fill: Vec<f64>,
+    /// Interface cells, ascending index.
+    interface: Vec<usize>,
+    /// Number of fluid cells.
+    fluid_count: usize,
+    /// Conversion work lists, reused every step.
+    lists: free_surface::Lists,
 }
 
 /// A D3Q19 fluid in a box of cells.
@@ -197,7 +260,16 @@ impl<T: Real> Fluid<T> {
             .ok_or(ConfigError::Dims(dims))?;
         let rest = crate::lattice::equilibrium(1.0, params.acceleration.map(|a| 0.5 * a));
         let populations = (0..Q * ncells).map(|k| T::from_f64(rest[k / ncells] - W[k / ncells])).collect();
-        let state = FluidState { dims, faces, flags: vec![flags::FLUID; ncells], populations, step: 0 };
+        let state = FluidState {
+            dims,
+            faces,
+            flags: vec![flags::FLUID; ncells],
+            populations,
+            mass: vec![0.0; ncells],
+            pending_excess: 0.0,
+            reference_mass: None,
+            step: 0,
+        };
         Self::from_state(state, params)
     }
 
@@ -206,18 +278,39 @@ impl<T: Real> Fluid<T> {
         params.validate()?;
         let [nx, ny, nz] = state.dims;
         let ncells = nx * ny * nz;
-        if ncells == 0 || state.flags.len() != ncells || state.populations.len() != Q * ncells {
+        if ncells == 0
+            || state.flags.len() != ncells
+            || state.populations.len() != Q * ncells
+            || state.mass.len() != ncells
+        {
             return Err(ConfigError::State(format!(
-                "dims {:?} need {} flags and {} populations, got {} and {}",
+                "dims {:?} need {} flags, {} populations and {} masses, got {}, {} and {}",
                 state.dims,
                 ncells,
                 Q * ncells,
+                ncells,
                 state.flags.len(),
-                state.populations.len()
+                state.populations.len(),
+                state.mass.len()
             )));
         }
-        let scratch = Scratch { next: state.populations.clone(), rows: vec![0; ny * nz], rows_stale: true };
+        if let Some(c) = state.flags.iter().position(|&f| f > flags::GAS) {
+            return Err(ConfigError::State(format!("cell index {c} has unknown flag {}", state.flags[c])));
+        }
+        if !state.pending_excess.is_finite() || state.mass.iter().any(|m| !m.is_finite()) {
+            return Err(ConfigError::State("liquid masses must be finite".into()));
+        }
+        let scratch = Scratch {
+            next: state.populations.clone(),
+            rows: vec![0; ny * nz],
+            rows_stale: true,
+            fill: vec![0.0; ncells],
+            interface: Vec::new(),
+            fluid_count: 0,
+            lists: Default::default(),
+        };
         let mut fluid = Fluid { state, params, scratch };
+        fluid.rebuild_lists();
         fluid.classify_rows();
         Ok(fluid)
     }
@@ -256,13 +349,33 @@ impl<T: Real> Fluid<T> {
         Ok(self.state.flags[self.index(cell)?])
     }
 
-    /// Makes `cell` a wall (or a fluid cell again with `flags::FLUID`).
+    /// Makes `cell` a wall (`flags::WALL`) or a fluid cell (`flags::FLUID`):
+    /// geometry set-up. An interface cell overwritten here loses its tracked
+    /// mass; set walls before [`Fluid::init_liquid`], and open a gate during a
+    /// run with [`Fluid::remove_walls`].
     pub fn set_flag(&mut self, cell: [usize; 3], flag: u8) -> Result<(), ConfigError> {
         let c = self.index(cell)?;
+        if flag != flags::FLUID && flag != flags::WALL {
+            return Err(ConfigError::Flag(flag));
+        }
+        let old = self.state.flags[c];
+        if old == flags::INTERFACE {
+            if let Ok(k) = self.scratch.interface.binary_search(&c) {
+                self.scratch.interface.remove(k);
+            }
+        }
+        if old == flags::FLUID {
+            self.scratch.fluid_count -= 1;
+        }
         self.state.flags[c] = flag;
+        self.state.mass[c] = 0.0;
         self.scratch.rows_stale = true;
-        if flag != flags::FLUID {
-            // The step never writes non-fluid cells; keeping them equal in
+        if flag == flags::FLUID {
+            self.scratch.fluid_count += 1;
+            self.scratch.fill[c] = 1.0;
+        } else {
+            self.scratch.fill[c] = 0.0;
+            // The step never writes non-liquid cells; keeping them equal in
             // both lattices makes the state independent of the step parity.
             self.write_cell(c, &[0.0; Q]);
         }
@@ -279,6 +392,9 @@ impl<T: Real> Fluid<T> {
         let a = self.params.acceleration;
         let feq = crate::lattice::equilibrium(rho, [u[0] + 0.5 * a[0], u[1] + 0.5 * a[1], u[2] + 0.5 * a[2]]);
         self.write_cell(c, &std::array::from_fn(|i| feq[i] - W[i]));
+        if self.state.flags[c] == flags::INTERFACE {
+            self.scratch.fill[c] = self.state.mass[c] / self.density_at(c);
+        }
         Ok(())
     }
 
@@ -310,34 +426,59 @@ impl<T: Real> Fluid<T> {
         (rho, std::array::from_fn(|a| j[a] / rho - 0.5 * acc[a]))
     }
 
+    /// Density ρ = Σ f_i of cell index `c`, summed as [`Fluid::moments_at`] does.
+    fn density_at(&self, c: usize) -> f64 {
+        let n = self.ncells();
+        1.0 + (0..Q).map(|i| self.state.populations[i * n + c].to_f64()).sum::<f64>()
+    }
+
     /// Density and velocity of `cell`, lattice units.
     pub fn moments(&self, cell: [usize; 3]) -> Result<(f64, [f64; 3]), ConfigError> {
         Ok(self.moments_at(self.index(cell)?))
     }
 
-    /// Σρ over fluid cells (lattice mass), summed in f64 in a fixed order.
-    pub fn total_mass(&self) -> f64 {
-        let n = self.ncells();
-        let p = &self.state.populations;
-        let fluid = (0..n).filter(|&c| self.state.flags[c] == flags::FLUID);
-        fluid.map(|c| 1.0 + (0..Q).map(|i| p[i * n + c].to_f64()).sum::<f64>()).sum()
+    /// Liquid mass Σ_F ρ + Σ_I m + pending excess (lattice units: ρ0Δx³),
+    /// summed in f64 in a fixed order. Without a free surface this is Σρ.
+    pub fn liquid_mass(&self) -> f64 {
+        let fl = &self.state.flags;
+        let mass: f64 = (0..self.ncells())
+            .map(|c| match fl[c] {
+                flags::FLUID => self.density_at(c),
+                flags::INTERFACE => self.state.mass[c],
+                _ => 0.0,
+            })
+            .sum();
+        mass + self.state.pending_excess
     }
 
-    /// ½ Σ ρ u² over fluid cells, lattice units.
+    /// (liquid mass − reference)/reference, the reference being the liquid
+    /// mass when [`Fluid::init_liquid`] (or [`Fluid::mark_reference_mass`])
+    /// ran; `None` before either.
+    pub fn mass_drift(&self) -> Option<f64> {
+        self.state.reference_mass.map(|m0| (self.liquid_mass() - m0) / m0)
+    }
+
+    /// Takes the current liquid mass as the reference of [`Fluid::mass_drift`].
+    pub fn mark_reference_mass(&mut self) {
+        self.state.reference_mass = Some(self.liquid_mass());
+    }
+
+    /// ½ Σ m u² over fluid (m = ρ) and interface cells, lattice units.
     pub fn kinetic_energy(&self) -> f64 {
         (0..self.ncells())
-            .filter(|&c| self.state.flags[c] == flags::FLUID)
+            .filter(|&c| flags::is_liquid(self.state.flags[c]))
             .map(|c| {
                 let (rho, u) = self.moments_at(c);
-                0.5 * rho * (u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+                let m = if self.state.flags[c] == flags::INTERFACE { self.state.mass[c] } else { rho };
+                0.5 * m * (u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
             })
             .sum()
     }
 
-    /// Largest |u| over fluid cells, lattice units.
+    /// Largest |u| over fluid and interface cells, lattice units.
     pub fn max_speed(&self) -> f64 {
         (0..self.ncells())
-            .filter(|&c| self.state.flags[c] == flags::FLUID)
+            .filter(|&c| flags::is_liquid(self.state.flags[c]))
             .map(|c| {
                 let u = self.moments_at(c).1;
                 (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt()
@@ -345,16 +486,19 @@ impl<T: Real> Fluid<T> {
             .fold(0.0, f64::max)
     }
 
-    /// The first fluid cell (lowest index) whose populations are not finite,
-    /// whose density leaves the limits, or whose speed exceeds the Mach limit.
-    /// Never panics; meant to run every few steps.
+    /// The first fluid or interface cell (lowest index) whose populations are
+    /// not finite, whose density leaves the limits, whose speed exceeds the
+    /// Mach limit, or (interface) whose fill ε = m/ρ leaves
+    /// [−κ − margin, 1 + κ + margin]. Never panics; meant to run every few
+    /// steps. Mass drift is reported by [`Fluid::mass_drift`].
     pub fn check(&self, limits: &WatchdogLimits) -> Result<(), Instability> {
         let [nx, ny, nz] = self.state.dims;
         let n = self.ncells();
         let cs = crate::lattice::CS2.sqrt();
         let found = (0..nz).into_par_iter().find_map_first(|z| {
             for c in z * nx * ny..(z + 1) * nx * ny {
-                if self.state.flags[c] != flags::FLUID {
+                let flag = self.state.flags[c];
+                if !flags::is_liquid(flag) {
                     continue;
                 }
                 let bad = if let Some(i) = (0..Q).find(|&i| !self.state.populations[i * n + c].is_finite()) {
@@ -367,6 +511,10 @@ impl<T: Real> Fluid<T> {
                         Some((Quantity::Density, rho))
                     } else if mach.is_nan() || mach > limits.max_mach {
                         Some((Quantity::Mach, mach))
+                    } else if flag == flags::INTERFACE {
+                        let fill = self.state.mass[c] / rho;
+                        let margin = self.params.kappa + limits.fill_margin;
+                        (!(-margin..=1.0 + margin).contains(&fill)).then_some((Quantity::Fill, fill))
                     } else {
                         None
                     }
@@ -392,37 +540,74 @@ impl<T: Real> Fluid<T> {
         }
         std::mem::swap(&mut self.state.populations, &mut self.scratch.next);
         self.state.step += 1;
+        if !self.scratch.interface.is_empty() {
+            self.update_surface();
+        }
     }
 
     /// Recomputes the row classes after flags changed.
     fn classify_rows(&mut self) {
-        let [nx, ny, nz] = self.state.dims;
-        let fl = &self.state.flags;
-        let rows = &mut self.scratch.rows;
+        let [_, ny, nz] = self.state.dims;
         for r in 0..ny * nz {
-            let row = &fl[r * nx..(r + 1) * nx];
-            let any = row.contains(&flags::FLUID);
-            let all = row.iter().all(|&f| f == flags::FLUID);
-            rows[r] = if any { ROW_ANY_FLUID } else { 0 } | if all { ROW_ALL_FLUID } else { 0 };
+            self.classify_row(r);
         }
+        for r in 0..ny * nz {
+            self.classify_row_sources(r);
+        }
+        self.scratch.rows_stale = false;
+    }
+
+    /// The bits of row `r` that depend on its own cells.
+    fn classify_row(&mut self, r: usize) {
+        let nx = self.state.dims[0];
+        let row = &self.state.flags[r * nx..(r + 1) * nx];
+        let any = row.iter().any(|&f| flags::is_liquid(f));
+        let all = row.iter().all(|&f| f == flags::FLUID);
+        let interface = row.contains(&flags::INTERFACE);
+        self.scratch.rows[r] = if any { ROW_ANY_LIQUID } else { 0 }
+            | if all { ROW_ALL_FLUID } else { 0 }
+            | if interface { ROW_ANY_INTERFACE } else { 0 };
+    }
+
+    /// The `ROW_SOURCES_FLUID` bit of row `r`, from its neighbour rows' own bits.
+    fn classify_row_sources(&mut self, r: usize) {
+        let [_, ny, nz] = self.state.dims;
         let faces = self.state.faces;
-        for z in 0..nz {
-            for y in 0..ny {
-                let mut sources_fluid = true;
-                for dz in -1..=1 {
-                    for dy in -1..=1 {
-                        // Rows beyond a wall face are not read: the pull bounces back there.
-                        if let (Some(ys), Some(zs)) = (wrap(y, dy, ny, faces[1]), wrap(z, dz, nz, faces[2])) {
-                            sources_fluid &= rows[zs * ny + ys] & ROW_ALL_FLUID != 0;
-                        }
-                    }
-                }
-                if sources_fluid {
-                    rows[z * ny + y] |= ROW_SOURCES_FLUID;
+        let (y, z) = (r % ny, r / ny);
+        let rows = &mut self.scratch.rows;
+        let mut sources_fluid = true;
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                // Rows beyond a wall face are not read: the pull bounces back there.
+                if let (Some(ys), Some(zs)) = (wrap(y, dy, ny, faces[1]), wrap(z, dz, nz, faces[2])) {
+                    sources_fluid &= rows[zs * ny + ys] & ROW_ALL_FLUID != 0;
                 }
             }
         }
-        self.scratch.rows_stale = false;
+        rows[r] = (rows[r] & !ROW_SOURCES_FLUID) | if sources_fluid { ROW_SOURCES_FLUID } else { 0 };
+    }
+
+    /// Reclassifies the rows in `rows` (sorted, deduplicated by the caller
+    /// or not: the work is idempotent) and the source bits of their neighbours.
+    fn reclassify_rows(&mut self, rows: &[usize]) {
+        if self.scratch.rows_stale {
+            return; // the next step reclassifies everything anyway
+        }
+        let [_, ny, nz] = self.state.dims;
+        let faces = self.state.faces;
+        for &r in rows {
+            self.classify_row(r);
+        }
+        for &r in rows {
+            let (y, z) = (r % ny, r / ny);
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    if let (Some(ys), Some(zs)) = (wrap(y, dy, ny, faces[1]), wrap(z, dz, nz, faces[2])) {
+                        self.classify_row_sources(zs * ny + ys);
+                    }
+                }
+            }
+        }
     }
 
     fn coefficients(&self) -> Coefficients<T> {
@@ -441,25 +626,29 @@ impl<T: Real> Fluid<T> {
     }
 
     /// Stage `stream_collide`: reads `state.populations`, writes `scratch.next`
-    /// for every fluid cell; non-fluid cells of `next` are left untouched.
+    /// for every fluid and interface cell (non-liquid cells of `next` are left
+    /// untouched), and adds each interface cell's mass exchange to its mass.
     fn stream_collide<const TRT: bool>(&mut self) {
         let [nx, ny, nz] = self.state.dims;
         let kernel = Kernel {
             src: &self.state.populations,
             flags: &self.state.flags,
             rows: &self.scratch.rows,
+            fill: &self.scratch.fill,
             nx,
             ny,
             nz,
             ncells: nx * ny * nz,
             faces: self.state.faces,
             coef: self.coefficients(),
+            accel: self.params.acceleration,
         };
         let out = SharedOut(self.scratch.next.as_mut_ptr(), self.scratch.next.len());
+        let mass = SharedOut(self.state.mass.as_mut_ptr(), self.state.mass.len());
         (0..nz).into_par_iter().for_each(|z| {
             let mut buffer = [[T::ZERO; LANES]; Q];
             for y in 0..ny {
-                kernel.row::<TRT>(y, z, &out, &mut buffer);
+                kernel.row::<TRT>(y, z, &out, &mass, &mut buffer);
             }
         });
     }
@@ -490,11 +679,11 @@ fn copy_lanes<T: Copy>(dst: &mut [T], src: &[T]) {
     }
 }
 
-/// The output lattice, written from several threads.
+/// The output lattice (or the mass array), written from several threads.
 ///
 /// Sound because each thread handles whole z-planes and writes only indices
 /// `i * ncells + c` with c in its own plane, so no index is written twice and
-/// nothing reads `next` during the step.
+/// nothing reads `next` (or `mass`) during the step.
 struct SharedOut<T>(*mut T, usize);
 // SAFETY: see the type's comment; T itself is sent between threads.
 unsafe impl<T: Send> Sync for SharedOut<T> {}
@@ -515,41 +704,65 @@ struct Kernel<'a, T> {
     src: &'a [T],
     flags: &'a [u8],
     rows: &'a [u8],
+    fill: &'a [f64],
     nx: usize,
     ny: usize,
     nz: usize,
     ncells: usize,
     faces: [Faces; 3],
     coef: Coefficients<T>,
+    accel: [f64; 3],
 }
 
 impl<T: Real> Kernel<'_, T> {
-    /// Streams and collides the fluid cells of row (y, z).
+    /// Streams and collides the fluid and interface cells of row (y, z).
     #[inline(always)]
-    fn row<const TRT: bool>(&self, y: usize, z: usize, out: &SharedOut<T>, f: &mut [[T; LANES]; Q]) {
+    fn row<const TRT: bool>(
+        &self,
+        y: usize,
+        z: usize,
+        out: &SharedOut<T>,
+        mass: &SharedOut<f64>,
+        f: &mut [[T; LANES]; Q],
+    ) {
         let class = self.rows[z * self.ny + y];
-        if class & ROW_ANY_FLUID == 0 {
+        if class & ROW_ANY_LIQUID == 0 {
             return;
         }
+        let all_fluid = class & ROW_ALL_FLUID != 0;
         let check_walls = class & ROW_SOURCES_FLUID == 0;
         let row_start = (z * self.ny + y) * self.nx;
         let mut x0 = 0;
         while x0 < self.nx {
             let n = LANES.min(self.nx - x0);
+            let own = row_start + x0;
+            // Chunks of gas and wall in a mixed row (the liquid front in a
+            // long flume) cost one scan of their flags.
+            if !all_fluid && !self.flags[own..own + n].iter().any(|&fl| flags::is_liquid(fl)) {
+                x0 += n;
+                continue;
+            }
             for i in 0..Q {
                 self.gather(i, y, z, x0, n, check_walls, &mut f[i]);
             }
-            // Whole vectors of lanes; the lanes past n hold finite leftovers and are not written.
+            if class & ROW_ANY_INTERFACE != 0 {
+                for l in 0..n {
+                    if self.flags[own + l] == flags::INTERFACE {
+                        self.interface_cell(x0 + l, y, z, l, f, mass);
+                    }
+                }
+            }
+            // Whole vectors of lanes; the lanes past n, and gas or wall
+            // lanes, hold finite leftovers and are not written.
             collide::<T, TRT>(f, n.next_multiple_of(8).min(LANES), &self.coef);
-            let own = row_start + x0;
             for i in 0..Q {
                 // SAFETY: cell indices own..own+n lie in plane z, which only this task writes.
                 let dst = unsafe { out.slice(i * self.ncells + own, n) };
-                if class & ROW_ALL_FLUID != 0 {
+                if all_fluid {
                     copy_lanes(dst, &f[i][..n]);
                 } else {
                     for l in 0..n {
-                        if self.flags[own + l] == flags::FLUID {
+                        if flags::is_liquid(self.flags[own + l]) {
                             dst[l] = f[i][l];
                         }
                     }
@@ -559,9 +772,61 @@ impl<T: Real> Kernel<'_, T> {
         }
     }
 
+    /// The free-surface part of the pull for interface cell (x, y, z), lane
+    /// `l` of `f` (which holds the pulled, pre-collision populations):
+    ///
+    /// * a population pulled from a gas cell is rebuilt (Körner et al. 2005)
+    ///   as f_i = f_i^eq(ρ_A, u) + f_ī^eq(ρ_A, u) − f_ī*(x) with ρ_A = 1 and u
+    ///   the cell's velocity before this step; in the stored shift g = f − w
+    ///   that is g_i = w_i[9(e_i·u)² − 3u²] − g_ī*(x);
+    /// * the mass exchange Δm = Σ_i s_i [f_i*(x − e_i) − f_ī*(x)] (what
+    ///   arrives from the neighbour minus what leaves toward it) with s = 1
+    ///   for a fluid neighbour, ½(ε(x) + ε(x − e_i)) for an interface
+    ///   neighbour, 0 for gas and wall, is added to the cell's mass. Both
+    ///   cells of a link see the same s and opposite differences, bit for
+    ///   bit, so Σm changes only by f64 round-off.
+    #[inline(never)]
+    fn interface_cell(&self, x: usize, y: usize, z: usize, l: usize, f: &mut [[T; LANES]; Q], mass: &SharedOut<f64>) {
+        let (nx, ny, n) = (self.nx, self.ny, self.ncells);
+        let c = (z * ny + y) * nx + x;
+        let own: [f64; Q] = std::array::from_fn(|j| self.src[j * n + c].to_f64());
+        let rho = 1.0 + own.iter().sum::<f64>();
+        let u: [f64; 3] = std::array::from_fn(|a| {
+            let j: f64 = (0..Q).map(|i| E[i][a] as f64 * own[i]).sum();
+            j / rho - 0.5 * self.accel[a]
+        });
+        let usq = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
+        let eps = self.fill[c];
+        let mut dm = 0.0;
+        for i in 1..Q {
+            let e = E[i];
+            let (Some(xs), Some(ys), Some(zs)) = (
+                wrap(x, -e[0], nx, self.faces[0]),
+                wrap(y, -e[1], ny, self.faces[1]),
+                wrap(z, -e[2], self.nz, self.faces[2]),
+            ) else {
+                continue; // beyond a wall face: bounced back, no exchange
+            };
+            let s = (zs * ny + ys) * nx + xs;
+            let outgoing = own[OPP[i]];
+            match self.flags[s] {
+                flags::FLUID => dm += f[i][l].to_f64() - outgoing,
+                flags::INTERFACE => dm += 0.5 * (eps + self.fill[s]) * (f[i][l].to_f64() - outgoing),
+                flags::GAS => {
+                    let eu = e[0] as f64 * u[0] + e[1] as f64 * u[1] + e[2] as f64 * u[2];
+                    f[i][l] = T::from_f64(W[i] * (9.0 * eu * eu - 3.0 * usq) - outgoing);
+                }
+                _ => {} // wall: bounced back in `gather`
+            }
+        }
+        // SAFETY: cell c lies in plane z, which only this task writes.
+        unsafe { mass.slice(c, 1)[0] += dm };
+    }
+
     /// Pulls population `i` for cells x0..x0+n of row (y, z) into `dst`:
     /// f_i(x) = f_i*(x − e_i), or f_ī*(x) (half-way bounce-back) when x − e_i
-    /// is a wall cell or lies beyond a wall face.
+    /// is not liquid or lies beyond a wall face. Gas sources are then rebuilt
+    /// by [`Kernel::interface_cell`] (a fluid cell never borders gas).
     #[inline(always)]
     fn gather(&self, i: usize, y: usize, z: usize, x0: usize, n: usize, check_walls: bool, dst: &mut [T; LANES]) {
         let (nx, ncells, src) = (self.nx, self.ncells, self.src);
@@ -591,7 +856,7 @@ impl<T: Real> Kernel<'_, T> {
         if check_walls {
             for l in 0..n {
                 if let Some(xs) = wrap(x0 + l, -e[0], nx, self.faces[0]) {
-                    if self.flags[src_row + xs] != flags::FLUID {
+                    if !flags::is_liquid(self.flags[src_row + xs]) {
                         dst[l] = src[bounce + l];
                     }
                 }
@@ -701,7 +966,7 @@ mod tests {
         // lattice::equilibrium.
         let u = [0.05, -0.03, 0.02];
         for collision in [Collision::Bgk, Collision::TRT_3_16] {
-            let params = FluidParams { tau: 0.53, collision, smagorinsky: 0.16, acceleration: [0.0; 3] };
+            let params = FluidParams { collision, ..FluidParams::new(0.53) };
             let mut fluid = periodic::<f64>([3, 2, 2], params);
             for c in 0..12 {
                 fluid.set_equilibrium([c % 3, (c / 3) % 2, c / 6], 1.02, u).expect("in box");
@@ -725,7 +990,7 @@ mod tests {
         // Periodic and uniform: Guo forcing must give du/dt = a and keep ρ.
         let a = [1e-5, -2e-5, 3e-5];
         for collision in [Collision::Bgk, Collision::TRT_3_16] {
-            let params = FluidParams { tau: 0.7, collision, smagorinsky: 0.16, acceleration: a };
+            let params = FluidParams { collision, acceleration: a, ..FluidParams::new(0.7) };
             let mut fluid = periodic::<f64>([2, 2, 2], params);
             for step in 1..=10 {
                 fluid.step();
@@ -771,6 +1036,26 @@ mod tests {
         assert_eq!((e.cell, e.quantity), ([0, 0, 0], Quantity::Population(7)));
         let msg = e.to_string();
         assert!(msg.contains("cell (0, 0, 0)") && msg.contains("f_7") && msg.contains("Smagorinsky"), "{msg}");
+    }
+
+    #[test]
+    fn watchdog_checks_the_interface_fill_and_set_up_errors_are_typed() {
+        let params = FluidParams { acceleration: [0.0, 0.0, -1e-4], ..FluidParams::new(0.6) };
+        let mut fluid = Fluid::<f32>::new([6, 5, 8], [Faces::Walls; 3], params).expect("valid parameters");
+        fluid.init_liquid(|c| c[2] < 4).expect("in box");
+        assert_eq!(fluid.interface_cells(), 30, "one layer of 6 x 5 interface cells at z = 3");
+        assert_eq!(fluid.active_cells(), 120);
+        assert!((fluid.fill([2, 2, 3]).expect("in box") - 0.5).abs() < 1e-12);
+        assert_eq!(fluid.check(&WatchdogLimits::default()), Ok(()));
+        let c = (3 * 5 + 2) * 6 + 4;
+        fluid.state.mass[c] = 1.2;
+        let e = fluid.check(&WatchdogLimits::default()).expect_err("fill 1.2");
+        assert_eq!((e.cell, e.quantity), ([4, 2, 3], Quantity::Fill));
+        assert!(e.to_string().contains("interface fill"), "{e}");
+        assert_eq!(fluid.set_flag([0, 0, 0], flags::GAS), Err(ConfigError::Flag(flags::GAS)));
+        assert!(matches!(fluid.remove_walls(&[[1, 1, 1]]), Err(ConfigError::NotWall([1, 1, 1]))));
+        let p = FluidParams { kappa: 0.7, ..params };
+        assert_eq!(fluid.set_params(p), Err(ConfigError::Kappa(0.7)));
     }
 
     #[test]

@@ -3,7 +3,8 @@
 //! * [`units`]: the one SI ↔ lattice converter, τ from viscosity;
 //! * [`lattice`]: D3Q19 velocities, weights, opposites, equilibrium;
 //! * [`fluid`]: the state and its fused stream–collide step (BGK or TRT,
-//!   Smagorinsky Eq. 4, Guo forcing, half-way bounce-back, periodic faces);
+//!   Smagorinsky Eq. 4, Guo forcing, half-way bounce-back, periodic faces),
+//!   and the free surface by mass tracking (interface and gas cells);
 //! * [`watchdog`]: the stability check with a typed diagnosis;
 //! * [`setup`]: a checked scene (SI) on the lattice: box, units, gates, liquid;
 //! * [`real`]: the population float type (f32 default, f64 for comparison);
@@ -19,6 +20,6 @@ pub mod setup;
 pub mod units;
 pub mod watchdog;
 
-pub use fluid::{Collision, Faces, Fluid, FluidParams, FluidState};
+pub use fluid::{Collision, Faces, Fluid, FluidParams, FluidState, InterfaceCell, Sample};
 pub use units::Units;
 pub use watchdog::{Instability, WatchdogLimits};

@@ -14,7 +14,7 @@ use lbm_proc::Units;
 fn poiseuille<T: Real>(h: usize, tau: f64, collision: Collision, u_max: f64) -> (Vec<f64>, f64, f64) {
     let nu = (tau - 0.5) / 3.0;
     let accel = 8.0 * nu * u_max / (h * h) as f64;
-    let params = FluidParams { tau, collision, smagorinsky: 0.0, acceleration: [accel, 0.0, 0.0] };
+    let params = FluidParams { collision, smagorinsky: 0.0, acceleration: [accel, 0.0, 0.0], ..FluidParams::new(tau) };
     let mut fluid =
         Fluid::<T>::new([1, h, 1], [Faces::Periodic, Faces::Walls, Faces::Periodic], params).expect("valid parameters");
     // The slowest transient decays as exp(−π²ν t/h²): 18 h²/(π²ν) steps leave e⁻¹⁸ ≈ 1.5e-8 of it.
@@ -165,7 +165,7 @@ fn shear_wave_decays_at_nu_k2() {
     // kinetic transient that decays in a few τ.
     for collision in [Collision::Bgk, Collision::TRT_3_16] {
         for tau in [0.6, 1.0] {
-            let params = FluidParams { tau, collision, smagorinsky: 0.0, acceleration: [0.0; 3] };
+            let params = FluidParams { collision, smagorinsky: 0.0, ..FluidParams::new(tau) };
             let nu = (tau - 0.5) / 3.0;
             for (name, rate) in [
                 ("f32", decay_rate(&shear_wave::<f32>(params, 64, 1e-4, 200, 2200).0)),
@@ -198,7 +198,7 @@ fn shear_wave_with_smagorinsky_matches_the_eddy_viscosity() {
     let (t0, t1) = (100, 3100);
     for collision in [Collision::Bgk, Collision::TRT_3_16] {
         let run = |c| {
-            let params = FluidParams { tau, collision, smagorinsky: c, acceleration: [0.0; 3] };
+            let params = FluidParams { collision, smagorinsky: c, ..FluidParams::new(tau) };
             shear_wave::<f32>(params, l, a0, 0, t1)
         };
         let ((amps, k), (amps0, _)) = (run(c), run(0.0));
@@ -299,7 +299,7 @@ fn tank<T: Real>(params: FluidParams, dims: [usize; 3], g_l: f64, units: &Units)
             }
         }
     }
-    let m0 = fluid.total_mass();
+    let m0 = fluid.liquid_mass();
     for _ in 0..12000 {
         fluid.step();
     }
@@ -315,5 +315,5 @@ fn tank<T: Real>(params: FluidParams, dims: [usize; 3], g_l: f64, units: &Units)
             s / (nx * ny) as f64
         })
         .collect();
-    (fluid.max_speed(), (fluid.total_mass() - m0).abs() / m0, pressure)
+    (fluid.max_speed(), (fluid.liquid_mass() - m0).abs() / m0, pressure)
 }

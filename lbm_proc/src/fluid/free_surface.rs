@@ -1,0 +1,532 @@
+//! Free surface by mass tracking (volume of fluid; Körner et al. 2005,
+//! Thürey 2007, Janßen & Krafczyk 2011; lbm-free-surface.md §3).
+//!
+//! Fluid (F) and interface (I) cells collide and stream; gas (G) cells are
+//! never computed. The kernel ([`super::Kernel::interface_cell`]) rebuilds
+//! the populations an I cell pulls from gas and adds the cell's mass
+//! exchange Δm to its mass m (f64). [`Fluid::update_surface`] then runs the
+//! rest of the step, in the order of §3 "Recommended step order":
+//!
+//! 3. ε = m/ρ from the new populations;
+//! 4. mark: I → F if m > (1 + κ)ρ, I → G if m < −κρ, plus forced
+//!    conversions. A cell with no G neighbour fills whatever its ε
+//!    (FluidX3D): it is a pocket of gas the model cannot hold up (there is
+//!    no gas pressure), and such pockets do form where a front overruns its
+//!    own tip on the floor, leaving rows of half-filled cells under fluid
+//!    that no flux ever fills. A cell with no F neighbour empties only when
+//!    ε < 0.1 or it has no I neighbour either (waLBerla), so that
+//!    one-cell-thick films (the tip of a dam-break front) survive;
+//! 5. filled cells: G neighbours become I with f^eq(ρ̄, ū) averaged over
+//!    their F and I neighbours and m = 0; neighbours marked I → G are
+//!    un-marked;
+//! 6. emptied cells: F neighbours become I with m = ρ (populations kept);
+//! 7. apply the flags; excess m − ρ (new F, then m = ρ) or m (new G);
+//! 8. distribute each positive excess over the I neighbours, weighted by
+//!    Thürey's eq. 4.9 (max(0, n·e_i) for a new F cell, max(0, −n·e_i) for
+//!    a new G cell, n = −∇ε/|∇ε| by central differences), evenly when all
+//!    weights vanish, evenly over the F neighbours when there is no I
+//!    neighbour. A deficit (negative excess, mostly from a collapsed
+//!    pocket) is taken from the F and I neighbours in proportion to the
+//!    liquid they hold (ρ, m), so that no receiver is driven below zero the
+//!    way the near-empty cells at a front tip would be. F cells receive
+//!    mass as a density change at their velocity, δf_i = δ·f_i^eq(1, u).
+//!    With no receiver the excess is kept as a counted pending excess;
+//! 9. update the interface list, ε and the row classes of touched rows.
+//!
+//! Everything here is sequential over the interface cells in ascending
+//! index order, so results do not depend on the thread count, and the work
+//! lists are reused, so a step allocates nothing once they have grown.
+
+use super::{flags, wrap, ConfigError, Fluid};
+use crate::lattice::{E, Q, W};
+use crate::real::Real;
+
+/// Transient marks, set and cleared within [`Fluid::update_surface`]; the
+/// kernel never sees them.
+const TO_FLUID: u8 = 4;
+const TO_GAS: u8 = 5;
+const NEW_INTERFACE: u8 = 6;
+
+/// waLBerla's forced emptying (FindInterfaceCellConversion.h): an I cell
+/// with no F neighbour (but an I neighbour) empties once ε falls below this.
+const FORCED_EMPTY: f64 = 0.1;
+
+/// Work lists of the conversions, reused every step.
+#[derive(Debug, Clone, Default)]
+pub(super) struct Lists {
+    filled: Vec<usize>,
+    emptied: Vec<usize>,
+    from_gas: Vec<usize>,
+    from_fluid: Vec<usize>,
+    next_interface: Vec<usize>,
+    /// (converted cell, excess mass, +1 new fluid / −1 new gas).
+    excess: Vec<(usize, f64, f64)>,
+    /// (receiving interface or fluid cell, mass it receives).
+    shares: Vec<(usize, f64)>,
+    rows: Vec<usize>,
+}
+
+/// One interface cell, for recording the surface.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InterfaceCell {
+    /// Cell (i, j, k).
+    pub cell: [usize; 3],
+    /// Fill ε = m/ρ.
+    pub fill: f64,
+    /// Velocity, lattice units.
+    pub velocity: [f64; 3],
+}
+
+/// What one cell holds, for recording slices of the grid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample {
+    /// One of [`flags`].
+    pub flag: u8,
+    /// Fill ε: 1 fluid, m/ρ interface, 0 gas and wall.
+    pub fill: f64,
+    /// Lattice density ρ (0 in gas and wall cells).
+    pub density: f64,
+    /// Velocity, lattice units (0 in gas and wall cells).
+    pub velocity: [f64; 3],
+}
+
+impl<T: Real> Fluid<T> {
+    fn coords(&self, c: usize) -> [usize; 3] {
+        let [nx, ny, _] = self.state.dims;
+        [c % nx, (c / nx) % ny, c / (nx * ny)]
+    }
+
+    /// The index of the neighbour of cell `c` along e_i, `None` beyond a wall face.
+    fn neighbour(&self, c: usize, i: usize) -> Option<usize> {
+        let [nx, ny, nz] = self.state.dims;
+        let [x, y, z] = self.coords(c);
+        let f = self.state.faces;
+        let e = E[i];
+        let xs = wrap(x, e[0], nx, f[0])?;
+        let ys = wrap(y, e[1], ny, f[1])?;
+        let zs = wrap(z, e[2], nz, f[2])?;
+        Some((zs * ny + ys) * nx + xs)
+    }
+
+    /// Rebuilds the interface list, the fluid count and the fill of every
+    /// cell from the flags and masses (after set-up or a restart).
+    pub(super) fn rebuild_lists(&mut self) {
+        self.scratch.interface.clear();
+        self.scratch.fluid_count = 0;
+        for c in 0..self.ncells() {
+            self.scratch.fill[c] = match self.state.flags[c] {
+                flags::FLUID => {
+                    self.scratch.fluid_count += 1;
+                    1.0
+                }
+                flags::INTERFACE => {
+                    self.scratch.interface.push(c);
+                    self.state.mass[c] / self.density_at(c)
+                }
+                _ => 0.0,
+            };
+        }
+    }
+
+    /// Sets up the liquid: every non-wall cell for which `liquid(cell)` is
+    /// true holds liquid at rest, every other non-wall cell is gas.
+    ///
+    /// * Liquid cells with a gas neighbour (any of the 18 links) become
+    ///   interface cells with fill ½, i.e. the surface lies at their centres;
+    ///   the rest are fluid. The liquid volume is therefore the number of
+    ///   liquid cells less half the number of interface cells.
+    /// * Density is hydrostatic, ρ = 1 + 3 g_L·depth, depth counted in cells
+    ///   along the dominant axis of the acceleration from the top liquid cell
+    ///   of the same column (ρ = 1 there, matching the gas ρ_A = 1); the
+    ///   populations are at equilibrium with u = 0.
+    /// * The liquid mass so set is the reference of [`Fluid::mass_drift`].
+    pub fn init_liquid(&mut self, liquid: impl Fn([usize; 3]) -> bool) -> Result<(), ConfigError> {
+        let n = self.ncells();
+        for c in 0..n {
+            if self.state.flags[c] != flags::WALL {
+                self.state.flags[c] = if liquid(self.coords(c)) { flags::FLUID } else { flags::GAS };
+            }
+        }
+        for c in 0..n {
+            if self.state.flags[c] == flags::FLUID
+                && (1..Q).any(|i| self.neighbour(c, i).is_some_and(|nb| self.state.flags[nb] == flags::GAS))
+            {
+                self.state.flags[c] = flags::INTERFACE;
+            }
+        }
+        // Hydrostatic density from the top liquid cell of each column.
+        let a = self.params.acceleration;
+        let k = (0..3).fold(0, |k, d| if a[d].abs() > a[k].abs() { d } else { k });
+        let (p, q) = ((k + 1) % 3, (k + 2) % 3);
+        let dims = self.state.dims;
+        let mut top: Vec<Option<usize>> = vec![None; dims[p] * dims[q]];
+        for c in 0..n {
+            if flags::is_liquid(self.state.flags[c]) {
+                let x = self.coords(c);
+                let t = &mut top[x[p] + dims[p] * x[q]];
+                // "Up" is against the acceleration: larger x_k when a_k < 0.
+                *t = Some(match *t {
+                    None => x[k],
+                    Some(t) if a[k] < 0.0 => t.max(x[k]),
+                    Some(t) => t.min(x[k]),
+                });
+            }
+        }
+        for c in 0..n {
+            match self.state.flags[c] {
+                flags::GAS => {
+                    self.write_cell(c, &[0.0; Q]);
+                    self.state.mass[c] = 0.0;
+                }
+                flags::FLUID | flags::INTERFACE => {
+                    let x = self.coords(c);
+                    let depth = top[x[p] + dims[p] * x[q]].map_or(0, |t| t.abs_diff(x[k])) as f64;
+                    let rho = 1.0 + 3.0 * a[k].abs() * depth;
+                    self.set_equilibrium(x, rho, [0.0; 3])?;
+                    let interface = self.state.flags[c] == flags::INTERFACE;
+                    self.state.mass[c] = if interface { 0.5 * rho } else { 0.0 };
+                }
+                _ => {}
+            }
+        }
+        self.state.pending_excess = 0.0;
+        self.rebuild_lists();
+        self.scratch.rows_stale = true;
+        self.mark_reference_mass();
+        Ok(())
+    }
+
+    /// Opens a gate: the wall cells `cells` become gas, and fluid cells now
+    /// next to them become interface cells with m = ρ (full); the ordinary
+    /// conversions take over from the next step (lbm-free-surface.md §4
+    /// "Gate"). Checks every cell first, so an error changes nothing.
+    pub fn remove_walls(&mut self, cells: &[[usize; 3]]) -> Result<(), ConfigError> {
+        for &cell in cells {
+            if self.state.flags[self.index(cell)?] != flags::WALL {
+                return Err(ConfigError::NotWall(cell));
+            }
+        }
+        for &cell in cells {
+            let c = self.index(cell)?;
+            self.state.flags[c] = flags::GAS;
+            self.state.mass[c] = 0.0;
+            self.scratch.fill[c] = 0.0;
+            self.write_cell(c, &[0.0; Q]);
+        }
+        for &cell in cells {
+            let c = self.index(cell)?;
+            for i in 1..Q {
+                if let Some(nb) = self.neighbour(c, i) {
+                    if self.state.flags[nb] == flags::FLUID {
+                        self.state.flags[nb] = flags::INTERFACE;
+                        self.state.mass[nb] = self.density_at(nb);
+                        self.scratch.fill[nb] = 1.0;
+                        self.scratch.fluid_count -= 1;
+                        self.scratch.interface.push(nb);
+                    }
+                }
+            }
+        }
+        self.scratch.interface.sort_unstable();
+        self.scratch.rows_stale = true;
+        Ok(())
+    }
+
+    /// Steps 3–9 of the free-surface step (module comment); runs after the
+    /// kernel has streamed, collided and added Δm to every interface mass.
+    pub(super) fn update_surface(&mut self) {
+        let mut l = std::mem::take(&mut self.scratch.lists);
+        let kappa = self.params.kappa;
+
+        // 3–4. Mark conversions. Marked cells still count as interface for
+        // their neighbours' tests, so the marks do not depend on the order.
+        l.filled.clear();
+        l.emptied.clear();
+        for &c in &self.scratch.interface {
+            let rho = self.density_at(c);
+            let m = self.state.mass[c];
+            let eps = m / rho;
+            let (mut has_f, mut has_g, mut has_i) = (false, false, false);
+            for i in 1..Q {
+                match self.neighbour(c, i).map(|nb| self.state.flags[nb]) {
+                    Some(flags::FLUID) => has_f = true,
+                    Some(flags::GAS) => has_g = true,
+                    Some(flags::WALL) | None => {}
+                    Some(_) => has_i = true,
+                }
+            }
+            if m > (1.0 + kappa) * rho || !has_g {
+                self.state.flags[c] = TO_FLUID;
+                l.filled.push(c);
+            } else if m < -kappa * rho || (!has_f && (eps < FORCED_EMPTY || !has_i)) {
+                self.state.flags[c] = TO_GAS;
+                l.emptied.push(c);
+            }
+        }
+
+        // 5. Filled cells: gas neighbours become interface; neighbours
+        // marked to empty stay interface (else F would touch G).
+        l.from_gas.clear();
+        for &c in &l.filled {
+            for i in 1..Q {
+                if let Some(nb) = self.neighbour(c, i) {
+                    match self.state.flags[nb] {
+                        TO_GAS => self.state.flags[nb] = flags::INTERFACE,
+                        flags::GAS => {
+                            self.state.flags[nb] = NEW_INTERFACE;
+                            l.from_gas.push(nb);
+                        }
+                        _ => {}
+                    }
+                }
+            }
+        }
+        let accel = self.params.acceleration;
+        for &c in &l.from_gas {
+            // New cells read only old F and I cells, so the order is free.
+            let (mut rho, mut u, mut count) = (0.0, [0.0; 3], 0.0);
+            for i in 1..Q {
+                if let Some(nb) = self.neighbour(c, i) {
+                    if matches!(self.state.flags[nb], flags::FLUID | flags::INTERFACE | TO_FLUID) {
+                        let (r, v) = self.moments_at(nb);
+                        rho += r;
+                        (0..3).for_each(|a| u[a] += v[a]);
+                        count += 1.0;
+                    }
+                }
+            }
+            // count ≥ 1: the filled cell that made c an interface cell is a neighbour.
+            let (rho, u) = (rho / count, u.map(|v| v / count));
+            let feq = crate::lattice::equilibrium(rho, std::array::from_fn(|a| u[a] + 0.5 * accel[a]));
+            self.write_cell(c, &std::array::from_fn(|i| feq[i] - W[i]));
+            self.state.mass[c] = 0.0;
+        }
+
+        // 6. Emptied cells: fluid neighbours become interface, full. A
+        // neighbour marked to fill cannot remain here: it would have
+        // un-marked this cell in step 5 (neighbourhoods are symmetric).
+        l.from_fluid.clear();
+        for &c in &l.emptied {
+            if self.state.flags[c] != TO_GAS {
+                continue;
+            }
+            for i in 1..Q {
+                if let Some(nb) = self.neighbour(c, i) {
+                    if self.state.flags[nb] == flags::FLUID {
+                        self.state.flags[nb] = NEW_INTERFACE;
+                        self.state.mass[nb] = self.density_at(nb);
+                        l.from_fluid.push(nb);
+                    }
+                }
+            }
+        }
+
+        // 7. Apply the flags and compute the excess masses.
+        l.excess.clear();
+        l.rows.clear();
+        let nx = self.state.dims[0];
+        for &c in &l.filled {
+            self.state.flags[c] = flags::FLUID;
+            l.excess.push((c, self.state.mass[c] - self.density_at(c), 1.0));
+            self.state.mass[c] = 0.0;
+            self.scratch.fill[c] = 1.0;
+            l.rows.push(c / nx);
+        }
+        self.scratch.fluid_count += l.filled.len();
+        for &c in &l.emptied {
+            if self.state.flags[c] == TO_GAS {
+                self.state.flags[c] = flags::GAS;
+                l.excess.push((c, self.state.mass[c], -1.0));
+                self.state.mass[c] = 0.0;
+                self.scratch.fill[c] = 0.0;
+                self.write_cell(c, &[0.0; Q]);
+                l.rows.push(c / nx);
+            }
+        }
+        self.scratch.fluid_count -= l.from_fluid.len();
+        for &c in l.from_gas.iter().chain(&l.from_fluid) {
+            self.state.flags[c] = flags::INTERFACE;
+            l.rows.push(c / nx);
+        }
+        // The new interface list: survivors (ascending) merged with the new
+        // cells (sorted here), then ε of every interface cell.
+        l.from_gas.extend_from_slice(&l.from_fluid);
+        l.from_gas.sort_unstable();
+        l.next_interface.clear();
+        let survivors = self.scratch.interface.iter().copied().filter(|&c| self.state.flags[c] == flags::INTERFACE);
+        merge_sorted(survivors, l.from_gas.iter().copied(), &mut l.next_interface);
+        std::mem::swap(&mut self.scratch.interface, &mut l.next_interface);
+        for k in 0..self.scratch.interface.len() {
+            let c = self.scratch.interface[k];
+            self.scratch.fill[c] = self.state.mass[c] / self.density_at(c);
+        }
+
+        // 8. Distribute the excess: all shares first (from the ε above),
+        // then add them, so the result does not depend on the order.
+        l.shares.clear();
+        let mut pending = 0.0;
+        let fluid = &*self;
+        for &(c, excess, sign) in &l.excess {
+            let normal = fluid.normal(c);
+            let weight = |i: usize| {
+                let ne: f64 = (0..3).map(|a| normal[a] * E[i][a] as f64).sum();
+                (sign * ne).max(0.0)
+            };
+            let receivers = |flag: u8| {
+                (1..Q).filter_map(move |i| {
+                    fluid.neighbour(c, i).filter(|&nb| fluid.state.flags[nb] == flag).map(|nb| (i, nb))
+                })
+            };
+            let start = l.shares.len();
+            let total: f64 = receivers(flags::INTERFACE).map(|(i, _)| weight(i)).sum();
+            if excess < 0.0 {
+                let held = |nb: usize| match fluid.state.flags[nb] {
+                    flags::INTERFACE => fluid.state.mass[nb].max(0.0),
+                    _ => fluid.density_at(nb),
+                };
+                let liquid = receivers(flags::INTERFACE).chain(receivers(flags::FLUID)).map(|(_, nb)| nb);
+                let total: f64 = liquid.clone().map(held).sum();
+                if total > 0.0 {
+                    l.shares.extend(liquid.filter(|&nb| held(nb) > 0.0).map(|nb| (nb, held(nb) / total)));
+                }
+            } else if total > 0.0 {
+                let weighted = receivers(flags::INTERFACE).filter(|&(i, _)| weight(i) > 0.0);
+                l.shares.extend(weighted.map(|(i, nb)| (nb, weight(i) / total)));
+            } else {
+                let flag = if receivers(flags::INTERFACE).next().is_some() { flags::INTERFACE } else { flags::FLUID };
+                let count = receivers(flag).count() as f64;
+                l.shares.extend(receivers(flag).map(|(_, nb)| (nb, 1.0 / count)));
+            }
+            let Some(last) = l.shares.len().checked_sub(1).filter(|&last| last >= start) else {
+                pending += excess;
+                continue;
+            };
+            // The last receiver takes what is left, so the shares sum to the excess.
+            let mut given = 0.0;
+            for share in &mut l.shares[start..last] {
+                share.1 *= excess;
+                given += share.1;
+            }
+            l.shares[last].1 = excess - given;
+        }
+        self.state.pending_excess += pending;
+        for &(nb, share) in &l.shares {
+            if self.state.flags[nb] == flags::INTERFACE {
+                self.state.mass[nb] += share;
+            } else {
+                self.add_density(nb, share);
+            }
+        }
+        for &(nb, _) in &l.shares {
+            if self.state.flags[nb] == flags::INTERFACE {
+                self.scratch.fill[nb] = self.state.mass[nb] / self.density_at(nb);
+            }
+        }
+
+        // 9. Row classes of the rows whose flags changed.
+        l.rows.sort_unstable();
+        l.rows.dedup();
+        self.reclassify_rows(&l.rows);
+        self.scratch.lists = l;
+    }
+
+    /// Adds mass `delta` to fluid cell `c` at its velocity:
+    /// f_i += δ·f_i^eq(1, u), which raises ρ by δ and ρu by δu. Written to
+    /// the current lattice only: the other one is overwritten by the next
+    /// step wherever the cell is liquid.
+    fn add_density(&mut self, c: usize, delta: f64) {
+        let (_, u) = self.moments_at(c);
+        let a = self.params.acceleration;
+        let feq = crate::lattice::equilibrium(delta, std::array::from_fn(|d| u[d] + 0.5 * a[d]));
+        let n = self.ncells();
+        for i in 0..Q {
+            let f = &mut self.state.populations[i * n + c];
+            *f = T::from_f64(f.to_f64() + feq[i]);
+        }
+    }
+
+    /// n = −∇ε/|∇ε| at cell `c` by central differences of the fill (a wall or
+    /// a face beyond the box counts as the cell's own ε); 0 where ∇ε = 0.
+    fn normal(&self, c: usize) -> [f64; 3] {
+        let own = self.scratch.fill[c];
+        let eps = |i: usize| {
+            self.neighbour(c, i)
+                .filter(|&nb| self.state.flags[nb] != flags::WALL)
+                .map_or(own, |nb| self.scratch.fill[nb])
+        };
+        // Directions 1..6 are +x, −x, +y, −y, +z, −z.
+        let g = [-0.5 * (eps(1) - eps(2)), -0.5 * (eps(3) - eps(4)), -0.5 * (eps(5) - eps(6))];
+        let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        if len > 0.0 {
+            g.map(|v| v / len)
+        } else {
+            [0.0; 3]
+        }
+    }
+
+    /// Fluid plus interface cells: the cells a step computes.
+    pub fn active_cells(&self) -> usize {
+        self.scratch.fluid_count + self.scratch.interface.len()
+    }
+
+    /// Number of interface cells.
+    pub fn interface_cells(&self) -> usize {
+        self.scratch.interface.len()
+    }
+
+    /// The interface cells in ascending index order, with fill and velocity.
+    pub fn interface(&self) -> impl Iterator<Item = InterfaceCell> + '_ {
+        self.scratch.interface.iter().map(|&c| {
+            let (rho, velocity) = self.moments_at(c);
+            InterfaceCell { cell: self.coords(c), fill: self.state.mass[c] / rho, velocity }
+        })
+    }
+
+    /// Fill ε of `cell`: 1 fluid, m/ρ interface, 0 gas and wall.
+    pub fn fill(&self, cell: [usize; 3]) -> Result<f64, ConfigError> {
+        let c = self.index(cell)?;
+        Ok(match self.state.flags[c] {
+            flags::FLUID => 1.0,
+            flags::INTERFACE => self.state.mass[c] / self.density_at(c),
+            _ => 0.0,
+        })
+    }
+
+    /// The fill ε of every cell (x fastest, as the flags), as of the end of
+    /// the last step or set-up call; equal to [`Fluid::fill`] cell by cell.
+    pub fn fill_field(&self) -> &[f64] {
+        &self.scratch.fill
+    }
+
+    /// Flag, fill, density and velocity of `cell` (lattice units), for
+    /// recording slices such as the mid-width x–z plane.
+    pub fn sample(&self, cell: [usize; 3]) -> Result<Sample, ConfigError> {
+        let c = self.index(cell)?;
+        let flag = self.state.flags[c];
+        if !flags::is_liquid(flag) {
+            return Ok(Sample { flag, fill: 0.0, density: 0.0, velocity: [0.0; 3] });
+        }
+        let (density, velocity) = self.moments_at(c);
+        let fill = if flag == flags::INTERFACE { self.state.mass[c] / density } else { 1.0 };
+        Ok(Sample { flag, fill, density, velocity })
+    }
+
+    /// Excess mass kept because no interface cell could take it (lattice units).
+    pub fn pending_excess(&self) -> f64 {
+        self.state.pending_excess
+    }
+}
+
+/// Merges two ascending sequences into `out`.
+fn merge_sorted(a: impl Iterator<Item = usize>, b: impl Iterator<Item = usize>, out: &mut Vec<usize>) {
+    let (mut a, mut b) = (a.peekable(), b.peekable());
+    loop {
+        let next = match (a.peek(), b.peek()) {
+            (Some(&x), Some(&y)) if x <= y => a.next(),
+            (Some(_), Some(_)) | (None, Some(_)) => b.next(),
+            (Some(_), None) => a.next(),
+            (None, None) => return,
+        };
+        out.extend(next);
+    }
+}
