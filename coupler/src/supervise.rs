@@ -133,7 +133,9 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
         return ExitCode::FAILURE;
     }
     // A reused output directory must not show a previous run's results as this one's.
-    for stale in ["run.mcap".to_string(), format!("{short}.mcap"), "summary.json".into(), format!("{short}_summary.json")] {
+    for stale in
+        ["run.mcap".to_string(), format!("{short}.mcap"), "summary.json".into(), format!("{short}_summary.json")]
+    {
         let path = out.join(stale);
         if path.exists() {
             if let Err(e) = std::fs::remove_file(&path) {
@@ -162,7 +164,12 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
             return ExitCode::FAILURE;
         }
     };
-    eprintln!("coupler: running {} ({}) with {solver}, output in {}", scene.spec.scene.name, method.name(), out.display());
+    eprintln!(
+        "coupler: running {} ({}) with {solver}, output in {}",
+        scene.spec.scene.name,
+        method.name(),
+        out.display()
+    );
 
     let mut stdout = BufReader::new(child.stdout.take().expect("piped")).lines();
     let mut stderr = BufReader::new(child.stderr.take().expect("piped")).lines();
@@ -312,7 +319,8 @@ fn finish_summary(out: &Path, short: &str, wall_total: f64, interrupted: bool) -
 
 fn report(s: &serde_json::Value, out: &Path) {
     let num = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
-    let rate = match (s["throughput"]["particle_steps_per_s"].as_f64(), s["throughput"]["cell_updates_per_s"].as_f64()) {
+    let rate = match (s["throughput"]["particle_steps_per_s"].as_f64(), s["throughput"]["cell_updates_per_s"].as_f64())
+    {
         (Some(p), _) => format!("{p:.3e} particle-steps/s"),
         (None, Some(c)) => format!("{:.1} MLUPS", c / 1e6),
         (None, None) => "no throughput".into(),

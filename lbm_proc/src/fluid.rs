@@ -732,9 +732,19 @@ impl<T: Real> Kernel<'_, T> {
         let all_fluid = class & ROW_ALL_FLUID != 0;
         let check_walls = class & ROW_SOURCES_FLUID == 0;
         let row_start = (z * self.ny + y) * self.nx;
-        let mut x0 = 0;
-        while x0 < self.nx {
-            let n = LANES.min(self.nx - x0);
+        // A mixed row is worked only over its liquid span: with a short
+        // column in a long flume most of a row is gas.
+        let (mut x0, end) = if all_fluid {
+            (0, self.nx)
+        } else {
+            let row = &self.flags[row_start..row_start + self.nx];
+            match (row.iter().position(|&fl| flags::is_liquid(fl)), row.iter().rposition(|&fl| flags::is_liquid(fl))) {
+                (Some(first), Some(last)) => (first, last + 1),
+                _ => return,
+            }
+        };
+        while x0 < end {
+            let n = LANES.min(end - x0);
             let own = row_start + x0;
             // Chunks of gas and wall in a mixed row (the liquid front in a
             // long flume) cost one scan of their flags.

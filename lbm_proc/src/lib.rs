@@ -6,6 +6,7 @@
 //!   Smagorinsky Eq. 4, Guo forcing, half-way bounce-back, periodic faces),
 //!   and the free surface by mass tracking (interface and gas cells);
 //! * [`watchdog`]: the stability check with a typed diagnosis;
+//! * [`run`]: a whole fluid-only run: gates, frames, MCAP, summary;
 //! * [`setup`]: a checked scene (SI) on the lattice: box, units, gates, liquid;
 //! * [`real`]: the population float type (f32 default, f64 for comparison);
 //! * [`bench`]: bulk throughput and memory bandwidth measurement.
@@ -16,6 +17,7 @@ pub mod bench;
 pub mod fluid;
 pub mod lattice;
 pub mod real;
+pub mod run;
 pub mod setup;
 pub mod units;
 pub mod watchdog;

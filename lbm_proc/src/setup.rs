@@ -96,10 +96,10 @@ impl LbmSetup {
             SceneCollision::Trt => Collision::Trt { magic: lbm.trt_magic },
         };
         let params = FluidParams {
-            tau,
             collision,
             smagorinsky: lbm.smagorinsky,
             acceleration: d.gravity.map(|g| units.acceleration_to_lattice(g)),
+            ..FluidParams::new(tau)
         };
         notes.push(format!(
             "lattice {} x {} x {} cells of {dx} m, dt {} s; tau0 = {tau:.6}, {:?}, Smagorinsky C = {}",

@@ -1,0 +1,205 @@
+//! `lbm_proc`: runs the free-surface LBM on a scene, alone or under `coupler`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use clap::{Parser, Subcommand};
+
+use lbm_proc::bench::{bulk_mlups, bytes_per_update, triad_bandwidth};
+use lbm_proc::fluid::{Collision, FluidParams};
+use lbm_proc::run::{initial_fluid, run, Progress, RunOptions};
+use lbm_proc::setup::LbmSetup;
+use schemas::process::{die_with_parent, progress_line, stop_flag};
+use schemas::{say, tell, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
+
+#[derive(Parser)]
+#[command(name = "lbm_proc", version, about = "D3Q19 free-surface lattice Boltzmann solver process")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a fluid scene and record it to OUT/lbm.mcap.
+    Run {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// Output directory.
+        #[arg(long, default_value = "runs/lbm")]
+        out: PathBuf,
+        /// Override a scene value, e.g. --set output.end_time=0.2 (repeatable).
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        /// Worker threads (default: all cores). Results do not depend on it.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Skip the MCAP recording (to measure what recording costs).
+        #[arg(long)]
+        no_record: bool,
+        /// Machine-readable progress on stdout, one JSON object per line (used by `coupler`).
+        #[arg(long)]
+        progress_json: bool,
+        /// Stop when the parent process dies (set by `coupler`).
+        #[arg(long)]
+        supervised: bool,
+    },
+    /// Throughput: a periodic bulk box (no free surface) against a STREAM
+    /// triad measured in the same run, on 1 and 2 threads; with --scene, also
+    /// STEPS steps of that scene counting only the cells updated.
+    Bench {
+        /// Bulk box cells along x, y, z.
+        #[arg(long, num_args = 3, default_values_t = [128, 64, 64])]
+        bulk: Vec<usize>,
+        /// A fluid scene to time as well (e.g. scenes/validation/water_block.toml).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        #[arg(long, default_value_t = 200)]
+        steps: u64,
+    },
+}
+
+struct Reporter {
+    json: bool,
+    started: Instant,
+}
+
+impl Progress for Reporter {
+    fn flow(&mut self, t: f64, t_end: f64, steps: u64) {
+        let wall = self.started.elapsed().as_secs_f64();
+        if self.json {
+            say!("{}", progress_line("flow", t, t_end, steps, wall));
+        } else {
+            tell!("flow: t = {t:.4} / {t_end} s, {steps} steps, {wall:.1} s wall");
+        }
+    }
+    fn log(&mut self, message: &str) {
+        tell!("lbm_proc: {message}");
+    }
+}
+
+fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
+    let scene = Scene::load(path, set).map_err(|e| {
+        tell!("lbm_proc: invalid scene {}:\n{e}", path.display());
+        ExitCode::from(EXIT_BAD_SCENE as u8)
+    })?;
+    if scene.spec.fluids.is_empty() {
+        tell!("lbm_proc: the scene has no [[fluids]] blocks; nothing for the LBM to do (grain-only scenes run in dem_proc)");
+        return Err(ExitCode::from(EXIT_BAD_SCENE as u8));
+    }
+    Ok(scene)
+}
+
+fn pool(threads: usize) -> Result<rayon::ThreadPool, ExitCode> {
+    rayon::ThreadPoolBuilder::new().num_threads(threads.max(1)).build().map_err(|e| {
+        tell!("lbm_proc: cannot start {threads} threads: {e}");
+        ExitCode::FAILURE
+    })
+}
+
+fn bench(bulk: &[usize], scene: Option<&PathBuf>, set: &[String], steps: u64) -> Result<(), ExitCode> {
+    let dims = [bulk[0], bulk[1], bulk[2]];
+    let bytes = bytes_per_update::<f32>();
+    let scene = scene.map(|p| load_scene(p, set)).transpose()?;
+    for threads in [1, 2] {
+        pool(threads)?.install(|| {
+            let bandwidth = triad_bandwidth(1 << 24, 5);
+            let bound = bandwidth / bytes as f64 / 1e6;
+            let mut line = format!(
+                "{{\"threads\":{threads},\"triad_bytes_per_s\":{bandwidth:.4e},\"bytes_per_cell_update\":{bytes},\"bound_mlups\":{bound:.2}"
+            );
+            for (name, params) in [
+                ("bgk_smagorinsky", FluidParams::new(0.6)),
+                ("trt_smagorinsky", FluidParams { collision: Collision::TRT_3_16, ..FluidParams::new(0.6) }),
+            ] {
+                let mlups = bulk_mlups::<f32>(dims, params, 20, 3);
+                line += &format!(",\"bulk_{name}_mlups\":{mlups:.2},\"bulk_{name}_fraction_of_bound\":{:.3}", mlups / bound);
+            }
+            if let Some(scene) = &scene {
+                match scene_mlups(scene, steps) {
+                    Ok(m) => line += &format!(",\"scene\":\"{}\",\"scene_active_mlups\":{m:.2}", scene.spec.scene.name),
+                    Err(e) => tell!("lbm_proc: {e}"),
+                }
+            }
+            say!("{line}}}");
+        });
+    }
+    Ok(())
+}
+
+/// Million updates of liquid (fluid + interface) cells per second over `steps` steps of a scene.
+fn scene_mlups(scene: &Scene, steps: u64) -> Result<f64, String> {
+    let setup = LbmSetup::from_scene(scene).map_err(|e| e.to_string())?;
+    let mut fluid = initial_fluid(scene, &setup).map_err(|e| e.to_string())?;
+    for gate in &setup.gates {
+        fluid.remove_walls(&gate.cells).map_err(|e| e.to_string())?;
+    }
+    let started = Instant::now();
+    let mut updates = 0.0;
+    for _ in 0..steps {
+        updates += fluid.active_cells() as f64;
+        fluid.step();
+    }
+    Ok(updates / started.elapsed().as_secs_f64() / 1e6)
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Bench { bulk, scene, set, steps } => {
+            bench(&bulk, scene.as_ref(), &set, steps).err().unwrap_or(ExitCode::SUCCESS)
+        }
+        Command::Run { scene, out, set, threads, no_record, progress_json, supervised } => {
+            let stop = match stop_flag() {
+                Ok(s) => s,
+                Err(e) => {
+                    tell!("lbm_proc: cannot install signal handler: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
+            if supervised {
+                die_with_parent();
+            }
+            let scene = match load_scene(&scene, &set) {
+                Ok(s) => s,
+                Err(code) => return code,
+            };
+            if let Some(n) = threads {
+                if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global() {
+                    tell!("lbm_proc: cannot set {n} threads: {e}");
+                    return ExitCode::FAILURE;
+                }
+            }
+            let mut reporter = Reporter { json: progress_json, started: Instant::now() };
+            let opts = RunOptions { out_dir: out, record: !no_record };
+            match run(&scene, &opts, &stop, &mut reporter) {
+                Ok(summary) => {
+                    if progress_json {
+                        say!("{{\"event\":\"done\",\"status\":\"{}\"}}", summary.status);
+                    }
+                    let front = summary.liquid_front.last().map(|f| f.x_norm).unwrap_or(f64::NAN);
+                    tell!(
+                        "lbm_proc: {} at t = {:.4} s after {} steps in {:.1} s ({:.1} MLUPS); liquid front {front:.4}",
+                        summary.status,
+                        summary.sim_time,
+                        summary.steps,
+                        summary.wall_seconds,
+                        summary.throughput.cell_updates_per_s.unwrap_or(0.0) / 1e6,
+                    );
+                    if summary.status == "interrupted" {
+                        ExitCode::from(EXIT_INTERRUPTED as u8)
+                    } else {
+                        ExitCode::SUCCESS
+                    }
+                }
+                Err(e) => {
+                    tell!("lbm_proc: error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+    }
+}

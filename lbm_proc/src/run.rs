@@ -1,0 +1,455 @@
+//! A whole fluid-only run: the scene on the lattice, gates released on time,
+//! the free-surface flow to the end time, recorded to MCAP, summarised.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use foxglove::schemas::{
+    packed_element_field::NumericType, Grid, Log, PackedElementField, PointCloud, Pose, Quaternion, Vector2, Vector3,
+};
+use serde::{Deserialize, Serialize};
+
+use schemas::measures::{front_position, FrontSample};
+use schemas::metrics::LbmMetrics;
+use schemas::record::{metadata, timestamp, topics, ChannelId, RecordError, Recorder, RecorderBuilder};
+use schemas::scene::Scene;
+use schemas::summary::{LbmDetails, RunSummary, Throughput};
+
+use crate::fluid::{flags, Fluid, FluidState};
+use crate::lattice::CS2;
+use crate::setup::{LbmSetup, SetupError};
+use crate::watchdog::Instability;
+
+/// Version of the `/lbm/state` bincode layout.
+pub const STATE_VERSION: u32 = 1;
+
+/// Full state, enough to continue a run bit for bit (`/lbm/state`).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct LbmState {
+    pub version: u32,
+    /// Simulated time since the start of the run, s.
+    pub time: f64,
+    /// Which gates (in scene order) have been removed.
+    pub gates_removed: Vec<bool>,
+    pub fluid: FluidState<f32>,
+}
+
+impl LbmState {
+    pub fn encode(&self) -> Vec<u8> {
+        bincode::serde::encode_to_vec(self, bincode::config::standard()).expect("state encodes")
+    }
+
+    pub fn decode(bytes: &[u8]) -> Result<Self, String> {
+        bincode::serde::decode_from_slice(bytes, bincode::config::standard()).map(|(s, _)| s).map_err(|e| e.to_string())
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Setup(#[from] SetupError),
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    #[error("the flow became unstable at t = {t:.5} s: {instability}. The recording up to the last frame is kept")]
+    Unstable { t: f64, instability: Box<Instability> },
+    #[error("cannot build the lattice: {0}")]
+    Lattice(String),
+    #[error("cannot write {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+}
+
+/// How the run reports progress to whoever launched it.
+pub trait Progress {
+    fn flow(&mut self, t: f64, t_end: f64, steps: u64);
+    fn log(&mut self, message: &str);
+}
+
+/// Options that are not part of the physics.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    pub out_dir: PathBuf,
+    /// Record to MCAP (off only for benchmarks measuring the recording cost).
+    pub record: bool,
+}
+
+/// Where `lbm_proc` writes its recording and its summary.
+pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
+    (out_dir.join("lbm.mcap"), out_dir.join("lbm_summary.json"))
+}
+
+struct Channels {
+    surface: ChannelId,
+    slice: ChannelId,
+    metrics: ChannelId,
+    state: ChannelId,
+    log: ChannelId,
+}
+
+/// The recorder (when recording) and what the frames need between calls.
+struct Frames {
+    recorder: Option<Recorder>,
+    channels: Option<Channels>,
+    /// Wall seconds spent building frames.
+    seconds: f64,
+    scratch: Vec<(f64, f64)>,
+    front: Vec<FrontSample>,
+    max_mach: f64,
+}
+
+const LOG_INFO: i32 = 2;
+const LOG_WARN: i32 = 3;
+const LOG_ERROR: i32 = 4;
+
+impl Frames {
+    fn log(&mut self, t: f64, level: i32, message: &str) -> Result<(), RecordError> {
+        if let (Some(r), Some(c)) = (self.recorder.as_mut(), self.channels.as_ref()) {
+            let msg = Log {
+                timestamp: Some(timestamp(t)),
+                level,
+                message: message.into(),
+                name: "lbm_proc".into(),
+                file: String::new(),
+                line: 0,
+            };
+            r.log(c.log, t, &msg)?;
+        }
+        Ok(())
+    }
+}
+
+/// The run's lattice, ready to step: walls, gates, the initial liquid at hydrostatic density.
+pub fn initial_fluid(scene: &Scene, setup: &LbmSetup) -> Result<Fluid<f32>, RunError> {
+    let mut fluid =
+        Fluid::<f32>::new(setup.dims, setup.faces, setup.params).map_err(|e| RunError::Lattice(e.to_string()))?;
+    for gate in &setup.gates {
+        for &c in &gate.cells {
+            fluid.set_flag(c, flags::WALL).map_err(|e| RunError::Lattice(e.to_string()))?;
+        }
+    }
+    fluid.init_liquid(|c| setup.starts_liquid(scene, c)).map_err(|e| RunError::Lattice(e.to_string()))?;
+    Ok(fluid)
+}
+
+/// Runs the scene. `stop` is polled every step; when set the run ends at the
+/// step boundary with status `interrupted` and a complete recording.
+pub fn run(
+    scene: &Scene,
+    opts: &RunOptions,
+    stop: &AtomicBool,
+    progress: &mut dyn Progress,
+) -> Result<RunSummary, RunError> {
+    let setup = LbmSetup::from_scene(scene)?;
+    let t_ref = scene.reference_time();
+    let out = &scene.spec.output;
+    for note in &setup.notes {
+        progress.log(note);
+    }
+    let mut fluid = initial_fluid(scene, &setup)?;
+    let mass_initial = fluid.liquid_mass();
+    let active_initial = fluid.active_cells();
+
+    std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
+    let (mcap_path, summary_path) = output_paths(&opts.out_dir);
+    let mut frames =
+        Frames { recorder: None, channels: None, seconds: 0.0, scratch: Vec::new(), front: Vec::new(), max_mach: 0.0 };
+    if opts.record {
+        let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
+        let mut state_meta = BTreeMap::new();
+        state_meta.insert(
+            "encoding".into(),
+            format!("bincode 2 (serde, standard config) of lbm_proc::run::LbmState version {STATE_VERSION}; see docs/recording.md"),
+        );
+        let channels = Channels {
+            surface: b.channel::<PointCloud>(topics::LBM_SURFACE)?,
+            slice: b.channel::<Grid>(topics::LBM_SLICE)?,
+            metrics: b.channel::<LbmMetrics>(topics::LBM_METRICS)?,
+            state: b.raw_channel(topics::LBM_STATE, "bincode", state_meta)?,
+            log: b.channel::<Log>(topics::LOG)?,
+        };
+        let mut rec = b.start(16);
+        let mut meta = BTreeMap::new();
+        meta.insert("toml".into(), scene.to_toml());
+        rec.metadata(metadata::SCENE, meta)?;
+        frames.recorder = Some(rec);
+        frames.channels = Some(channels);
+    }
+    for note in &setup.notes {
+        frames.log(0.0, LOG_INFO, note)?;
+    }
+
+    let dt = setup.units.dt();
+    let steps_per_frame = ((out.record_interval / dt).round() as u64).max(1);
+    let steps_per_state = out.state_interval.map(|s| ((s / dt).round() as u64).max(1));
+    let total_steps = (out.end_time / dt).ceil() as u64;
+    let mut gates_removed = vec![false; setup.gates.len()];
+    let mut time = 0.0;
+    let mut steps = 0u64;
+    let mut cell_updates = 0.0_f64;
+    let mut status = "completed";
+    let started = Instant::now();
+    let mut last_frame = (Instant::now(), 0.0_f64);
+    let mut last_progress = Instant::now();
+    let mut last_recorded = 0u64;
+    let mut last_state = None;
+    let mut failure = None;
+
+    release_gates(&mut fluid, &setup, &mut gates_removed, time, &mut frames)?;
+    record_frame(&mut frames, &fluid, scene, &setup, t_ref, time, mass_initial, 0.0)?;
+    while steps < total_steps {
+        cell_updates += fluid.active_cells() as f64;
+        fluid.step();
+        steps += 1;
+        time = steps as f64 * dt;
+        release_gates(&mut fluid, &setup, &mut gates_removed, time, &mut frames)?;
+        if stop.load(Ordering::Relaxed) {
+            status = "interrupted";
+            frames.log(time, LOG_WARN, "interrupted by signal; recording the last state")?;
+            break;
+        }
+        if steps.is_multiple_of(steps_per_frame) {
+            let elapsed = last_frame.0.elapsed().as_secs_f64();
+            let mlups = (cell_updates - last_frame.1) / elapsed.max(1e-9) / 1e6;
+            last_frame = (Instant::now(), cell_updates);
+            if let Err(instability) = fluid.check(&setup.limits) {
+                status = "unstable";
+                frames.log(time, LOG_ERROR, &instability.to_string())?;
+                failure = Some(RunError::Unstable { t: time, instability: Box::new(instability) });
+                break;
+            }
+            record_frame(&mut frames, &fluid, scene, &setup, t_ref, time, mass_initial, mlups)?;
+            last_recorded = steps;
+            if steps_per_state.is_some_and(|n| steps.is_multiple_of(n)) {
+                record_state(&mut frames, &fluid, time, &gates_removed)?;
+                last_state = Some(steps);
+            }
+        }
+        if last_progress.elapsed().as_secs_f64() > 0.5 {
+            progress.flow(time, out.end_time, steps);
+            last_progress = Instant::now();
+        }
+    }
+    let wall = started.elapsed().as_secs_f64();
+    progress.flow(time, out.end_time, steps);
+    // The run always ends with a recorded frame and a full state (also after a blow-up: the state shows it).
+    if last_recorded != steps && failure.is_none() {
+        record_frame(&mut frames, &fluid, scene, &setup, t_ref, time, mass_initial, 0.0)?;
+    }
+    if last_state != Some(steps) {
+        record_state(&mut frames, &fluid, time, &gates_removed)?;
+    }
+
+    let mass_final = fluid.liquid_mass();
+    let mass_si = |m: f64| m * setup.density * setup.units.dx().powi(3);
+    let summary = RunSummary {
+        scene: scene.spec.scene.name.clone(),
+        method: "lbm".into(),
+        status: status.into(),
+        sim_time: time,
+        wall_seconds: wall,
+        steps,
+        throughput: Throughput {
+            particle_steps_per_s: None,
+            cell_updates_per_s: Some(cell_updates / wall.max(1e-9)),
+            wall_per_sim_second: wall / time.max(1e-12),
+        },
+        t_ref,
+        front: Vec::new(),
+        runout: f64::NAN,
+        front_connected: Vec::new(),
+        runout_connected: None,
+        deposit: Vec::new(),
+        porosity_initial: f64::NAN,
+        liquid_front: std::mem::take(&mut frames.front),
+        dem: None,
+        lbm: Some(LbmDetails {
+            dims: setup.dims,
+            spacing: setup.units.dx(),
+            time_step: dt,
+            tau: setup.params.tau,
+            collision: format!("{:?}", setup.params.collision),
+            smagorinsky: setup.params.smagorinsky,
+            active_cells_initial: active_initial,
+            active_cells_final: fluid.active_cells(),
+            mass_initial: mass_si(mass_initial),
+            mass_final: mass_si(mass_final),
+            mass_relative_change: (mass_final - mass_initial) / mass_initial,
+            max_mach: frames.max_mach,
+            recording_fraction: frames.seconds / wall.max(1e-9),
+            threads: rayon::current_num_threads(),
+        }),
+        wall_seconds_total: None,
+    };
+    let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
+    frames.log(
+        time,
+        LOG_INFO,
+        &format!(
+            "run {status}: t = {time:.4} s, {steps} steps, mass change {:.3e}",
+            (mass_final - mass_initial) / mass_initial
+        ),
+    )?;
+    if let Some(mut rec) = frames.recorder.take() {
+        let mut meta = BTreeMap::new();
+        meta.insert("json".into(), json.clone());
+        rec.metadata(metadata::SUMMARY, meta)?;
+        rec.finish()?;
+    }
+    std::fs::write(&summary_path, json).map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
+    match failure {
+        Some(e) => Err(e),
+        None => Ok(summary),
+    }
+}
+
+fn release_gates(
+    fluid: &mut Fluid<f32>,
+    setup: &LbmSetup,
+    removed: &mut [bool],
+    time: f64,
+    frames: &mut Frames,
+) -> Result<(), RunError> {
+    for (g, gate) in setup.gates.iter().enumerate() {
+        if !removed[g] && time >= gate.release_time {
+            fluid.remove_walls(&gate.cells).map_err(|e| RunError::Lattice(e.to_string()))?;
+            removed[g] = true;
+            frames.log(time, LOG_INFO, &format!("gate {} removed ({} cells)", gate.name, gate.cells.len()))?;
+        }
+    }
+    Ok(())
+}
+
+fn record_state(frames: &mut Frames, fluid: &Fluid<f32>, time: f64, gates_removed: &[bool]) -> Result<(), RecordError> {
+    if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
+        let state = LbmState {
+            version: STATE_VERSION,
+            time,
+            gates_removed: gates_removed.to_vec(),
+            fluid: fluid.state().clone(),
+        };
+        rec.log_bytes(ch.state, time, state.encode())?;
+    }
+    Ok(())
+}
+
+fn field(name: &str, offset: u32) -> PackedElementField {
+    PackedElementField { name: name.into(), offset, r#type: NumericType::Float32 as i32 }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn record_frame(
+    frames: &mut Frames,
+    fluid: &Fluid<f32>,
+    scene: &Scene,
+    setup: &LbmSetup,
+    t_ref: f64,
+    t: f64,
+    mass_initial: f64,
+    mlups: f64,
+) -> Result<(), RecordError> {
+    let started = Instant::now();
+    let units = &setup.units;
+    let dx = units.dx();
+    let x0 = scene.spec.domain.min[0];
+    let l0 = scene.spec.analysis.column_length;
+    let fraction = scene.spec.analysis.front_mass_fraction;
+    let mut scratch = std::mem::take(&mut frames.scratch);
+    let [nx, ny, _] = setup.dims;
+    // Each liquid cell counted at its centre with its mass ρ ε (lattice units; the rule needs ratios only).
+    let liquid = fluid.fill_field().iter().enumerate().filter(|(_, &fill)| fill > 0.0).map(|(c, &fill)| {
+        let cell = [c % nx, (c / nx) % ny, c / (nx * ny)];
+        let density = fluid.sample(cell).map(|s| s.density).unwrap_or(1.0);
+        (setup.centre(cell)[0], density * fill)
+    });
+    let fx = front_position(liquid, fraction, &mut scratch);
+    frames.scratch = scratch;
+    let sample = FrontSample { t, t_norm: t / t_ref, x: fx, x_norm: (fx - x0 - l0) / l0 };
+    frames.front.push(sample);
+    let mass = fluid.liquid_mass();
+    let max_speed = fluid.max_speed();
+    let max_mach = max_speed / CS2.sqrt();
+    frames.max_mach = frames.max_mach.max(max_mach);
+
+    if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
+        // Free surface: interface cells with their fill and speed.
+        const STRIDE: usize = 20;
+        let mut data = Vec::new();
+        let mut interface = 0usize;
+        for cell in fluid.interface() {
+            let c = setup.centre(cell.cell);
+            let u = cell.velocity;
+            let speed = units.velocity_to_si((u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt());
+            for v in [c[0], c[1], c[2], speed, cell.fill] {
+                data.extend_from_slice(&(v as f32).to_le_bytes());
+            }
+            interface += 1;
+        }
+        let cloud = PointCloud {
+            timestamp: Some(timestamp(t)),
+            frame_id: "world".into(),
+            pose: Some(Pose { position: Some(Vector3 { x: 0.0, y: 0.0, z: 0.0 }), orientation: Some(identity()) }),
+            point_stride: STRIDE as u32,
+            fields: vec![field("x", 0), field("y", 4), field("z", 8), field("speed", 12), field("fill", 16)],
+            data: data.into(),
+        };
+        rec.log(ch.surface, t, &cloud)?;
+
+        // Mid-width x–z slice: fill (0 in gas and walls) and speed, rows along z.
+        let nz = setup.dims[2];
+        let j = ny / 2;
+        let mut grid = Vec::with_capacity(nx * nz * 8);
+        for k in 0..nz {
+            for i in 0..nx {
+                let (fill, speed) = match fluid.sample([i, j, k]) {
+                    Ok(s) => (s.fill, s.velocity.iter().map(|v| v * v).sum::<f64>().sqrt()),
+                    Err(_) => (0.0, 0.0),
+                };
+                for v in [fill, units.velocity_to_si(speed)] {
+                    grid.extend_from_slice(&(v as f32).to_le_bytes());
+                }
+            }
+        }
+        // The grid lies in its pose's x–y plane: turn it +90° about x so its y runs along z.
+        let half = std::f64::consts::FRAC_1_SQRT_2;
+        let slice = Grid {
+            timestamp: Some(timestamp(t)),
+            frame_id: "world".into(),
+            pose: Some(Pose {
+                position: Some(Vector3 { x: setup.origin[0], y: setup.centre([0, j, 0])[1], z: setup.origin[2] }),
+                orientation: Some(Quaternion { x: half, y: 0.0, z: 0.0, w: half }),
+            }),
+            column_count: nx as u32,
+            cell_size: Some(Vector2 { x: dx, y: dx }),
+            row_stride: (nx * 8) as u32,
+            cell_stride: 8,
+            fields: vec![field("fill", 0), field("speed", 4)],
+            data: grid.into(),
+        };
+        rec.log(ch.slice, t, &slice)?;
+
+        let si_mass = setup.density * dx.powi(3);
+        let si_energy = si_mass * (dx / units.dt()).powi(2);
+        let metrics = LbmMetrics {
+            t,
+            t_norm: t / t_ref,
+            liquid_mass: mass * si_mass,
+            liquid_mass_change: (mass - mass_initial) / mass_initial,
+            kinetic_energy: fluid.kinetic_energy() * si_energy,
+            liquid_front_x: fx,
+            liquid_front_norm: sample.x_norm,
+            max_speed: units.velocity_to_si(max_speed),
+            max_mach,
+            active_cells: fluid.active_cells() as f64,
+            interface_cells: interface as f64,
+            mlups,
+        };
+        rec.log(ch.metrics, t, &metrics)?;
+    }
+    frames.seconds += started.elapsed().as_secs_f64();
+    Ok(())
+}
+
+fn identity() -> Quaternion {
+    Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 }
+}

@@ -1,0 +1,106 @@
+//! End to end through the real binaries: `coupler run` on the small water
+//! block (fluid only, lbm_proc), the summary, and the recording read back.
+
+use std::path::PathBuf;
+use std::process::Command;
+use std::sync::OnceLock;
+
+use foxglove::Decode;
+use integration_tests::{binary, repo_root, scratch_dir};
+
+/// 0.1 s of the coarse water block (1000 steps of 100 x 25 x 40 cells).
+fn water_run() -> &'static PathBuf {
+    static RUN: OnceLock<PathBuf> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let out = scratch_dir("water_block");
+        let status = Command::new(binary("coupler"))
+            .current_dir(repo_root())
+            .args(["run", "scenes/validation/water_block.toml", "--quiet", "--set", "output.end_time=0.1", "--out"])
+            .arg(&out)
+            .status()
+            .expect("coupler starts");
+        assert!(status.success(), "coupler run failed: {status}");
+        out
+    })
+}
+
+fn summary() -> serde_json::Value {
+    let text = std::fs::read_to_string(water_run().join("summary.json")).expect("summary.json written");
+    serde_json::from_str(&text).expect("summary is JSON")
+}
+
+#[test]
+fn water_block_summary() {
+    let s = summary();
+    assert_eq!(s["method"], "lbm");
+    assert_eq!(s["status"], "completed");
+    assert!((s["sim_time"].as_f64().unwrap() - 0.1).abs() < 1e-9);
+    assert_eq!(s["steps"].as_u64().unwrap(), 1000);
+    // Liquid mass: the mass tracking exchanges it antisymmetrically in f64;
+    // what drifts is the f32 round-off of the fluid cells' densities, ~1e-8
+    // per thousand steps (docs/lbm.md). 1e-6 is the bar set for the solver.
+    let lbm = &s["lbm"];
+    let change = lbm["mass_relative_change"].as_f64().unwrap();
+    assert!(change.abs() < 1e-6, "mass change {change}");
+    // 0.04 x 0.05 x 0.06 m of water = 0.12 kg, less half of the top layer of
+    // cells (the initial surface lies mid-cell: 1/60 of the height), times the
+    // mean hydrostatic density 1 + 3 g_L d over the 29.5 cells of depth
+    // (g_L = g dt²/dx = 4.905e-5, mean depth 14.75 cells: +0.22 %).
+    let m0 = lbm["mass_initial"].as_f64().unwrap();
+    let expected = 0.12 * (1.0 - 0.5 / 30.0) * (1.0 + 3.0 * 4.905e-5 * 14.75);
+    assert!((m0 - expected).abs() < 1e-3 * expected, "initial mass {m0} vs {expected}");
+    // The front: starts at the gate (x_norm ~ 0), then runs out. In 0.1 s a
+    // dam-break front cannot pass Ritter's 2 sqrt(g H0) t = 0.153 m, i.e.
+    // x_norm < 0.153/0.04 = 3.8, and a real one travels at least half that far.
+    let front = s["liquid_front"].as_array().unwrap();
+    assert_eq!(front.len(), 11, "frames at t = 0, 0.01, ..., 0.1");
+    let x0 = front[0]["x_norm"].as_f64().unwrap();
+    assert!(x0.abs() < 0.1, "front at t = 0: {x0}");
+    let xs: Vec<f64> = front.iter().map(|f| f["x_norm"].as_f64().unwrap()).collect();
+    let last = *xs.last().unwrap();
+    assert!(last > 1.0 && last < 3.8, "front at 0.1 s: {last} ({xs:?})");
+    assert!(xs.windows(2).all(|w| w[1] >= w[0] - 0.05), "front recedes: {xs:?}");
+    let rate = s["throughput"]["cell_updates_per_s"].as_f64().unwrap();
+    assert!(rate > 0.0);
+}
+
+#[test]
+fn water_recording_reads_back() {
+    let bytes = std::fs::read(water_run().join("run.mcap")).expect("run.mcap written");
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("finished file has a summary section");
+    let topics: Vec<String> = summary.channels.values().map(|c| c.topic.clone()).collect();
+    for t in ["/lbm/surface", "/lbm/slice", "/lbm/metrics", "/lbm/state", "/log"] {
+        assert!(topics.iter().any(|x| x == t), "missing {t} in {topics:?}");
+    }
+    let (mut grids, mut surfaces, mut states) = (0, 0, 0);
+    for msg in mcap::MessageStream::new(&bytes).unwrap() {
+        let msg = msg.unwrap();
+        match msg.channel.topic.as_str() {
+            "/lbm/slice" => {
+                let grid = foxglove::schemas::Grid::decode(&msg.data[..]).unwrap();
+                assert_eq!(grid.column_count, 100);
+                assert_eq!(grid.data.len(), 100 * 40 * 8, "fill and speed for 100 x 40 cells");
+                // Fill levels lie in [0, 1] (walls have none).
+                for cell in grid.data.chunks(8) {
+                    let fill = f32::from_le_bytes(cell[0..4].try_into().unwrap());
+                    assert!((-0.01..=1.01).contains(&fill), "fill {fill}");
+                }
+                grids += 1;
+            }
+            "/lbm/surface" => {
+                let cloud = foxglove::schemas::PointCloud::decode(&msg.data[..]).unwrap();
+                assert_eq!(cloud.point_stride, 20);
+                assert!(!cloud.data.is_empty(), "a free surface exists");
+                surfaces += 1;
+            }
+            "/lbm/state" => {
+                let state = lbm_proc::run::LbmState::decode(&msg.data).unwrap();
+                assert_eq!(state.fluid.dims, [100, 25, 40]);
+                states += 1;
+            }
+            _ => {}
+        }
+    }
+    assert_eq!((grids, surfaces), (11, 11));
+    assert!(states >= 1, "a final state");
+}
