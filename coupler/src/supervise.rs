@@ -91,6 +91,32 @@ impl Bar {
     }
 }
 
+/// Lines of a child's pipe, decoded lossily: a stray non-UTF-8 byte must not
+/// stop the draining (a child blocked on a full pipe would hang the run).
+struct LossyLines<R> {
+    reader: BufReader<R>,
+    buf: Vec<u8>,
+}
+
+impl<R: tokio::io::AsyncRead + Unpin> LossyLines<R> {
+    fn new(pipe: R) -> Self {
+        Self { reader: BufReader::new(pipe), buf: Vec::new() }
+    }
+
+    /// The next line without its newline; None at end of file or on a read
+    /// error. Cancel-safe: a partly read line stays in the buffer.
+    async fn next_line(&mut self) -> Option<String> {
+        match self.reader.read_until(b'\n', &mut self.buf).await {
+            Ok(0) | Err(_) if self.buf.is_empty() => None,
+            _ => {
+                let line = String::from_utf8_lossy(self.buf.strip_suffix(b"\n").unwrap_or(&self.buf)).into_owned();
+                self.buf.clear();
+                Some(line)
+            }
+        }
+    }
+}
+
 /// Sends `sig` to a running child.
 fn send_signal(child: &Child, sig: i32) {
     if let Some(pid) = child.id() {
@@ -171,8 +197,8 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
         out.display()
     );
 
-    let mut stdout = BufReader::new(child.stdout.take().expect("piped")).lines();
-    let mut stderr = BufReader::new(child.stderr.take().expect("piped")).lines();
+    let mut stdout = LossyLines::new(child.stdout.take().expect("piped"));
+    let mut stderr = LossyLines::new(child.stderr.take().expect("piped"));
     let (mut sigint, mut sigterm) = match (signal(SignalKind::interrupt()), signal(SignalKind::terminate())) {
         (Ok(a), Ok(b)) => (a, b),
         _ => {
@@ -187,7 +213,7 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     let status = loop {
         tokio::select! {
             line = stdout.next_line(), if stdout_open => match line {
-                Ok(Some(l)) => {
+                Some(l) => {
                     if let Ok(ev) = serde_json::from_str::<serde_json::Value>(&l) {
                         if ev["event"] == "progress" { bar.progress(&ev); }
                     }
@@ -195,8 +221,8 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
                 _ => stdout_open = false,
             },
             line = stderr.next_line(), if stderr_open => match line {
-                Ok(Some(l)) => bar.println(&l),
-                _ => stderr_open = false,
+                Some(l) => bar.println(&l),
+                None => stderr_open = false,
             },
             _ = sigint.recv() => { interrupts += 1; forward(&child, solver, interrupts, &bar); }
             _ = sigterm.recv() => { interrupts += 1; forward(&child, solver, interrupts, &bar); }
@@ -206,7 +232,7 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     // Drain what the child wrote just before exiting.
     while stderr_open {
         match tokio::time::timeout(Duration::from_millis(200), stderr.next_line()).await {
-            Ok(Ok(Some(l))) => bar.println(&l),
+            Ok(Some(l)) => bar.println(&l),
             _ => stderr_open = false,
         }
     }
@@ -341,4 +367,22 @@ fn report(s: &serde_json::Value, out: &Path) {
         eprintln!("coupler: liquid front (X_f - L0)/L0 = {:.4} at the end", num(&front["x_norm"]));
     }
     eprintln!("coupler: wrote {} and {}", out.join("run.mcap").display(), out.join("summary.json").display());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::LossyLines;
+
+    #[test]
+    fn non_utf8_output_does_not_stop_the_reader() {
+        let rt = tokio::runtime::Builder::new_current_thread().build().unwrap();
+        rt.block_on(async {
+            let bytes: &[u8] = b"first\n\xff\xfe stray bytes\nlast without newline";
+            let mut lines = LossyLines::new(bytes);
+            assert_eq!(lines.next_line().await.as_deref(), Some("first"));
+            assert_eq!(lines.next_line().await.as_deref(), Some("\u{fffd}\u{fffd} stray bytes"));
+            assert_eq!(lines.next_line().await.as_deref(), Some("last without newline"));
+            assert_eq!(lines.next_line().await, None);
+        });
+    }
 }
