@@ -1058,8 +1058,8 @@ mod tests {
         assert!((fluid.fill([2, 2, 3]).expect("in box") - 0.5).abs() < 1e-12);
         assert_eq!(fluid.check(&WatchdogLimits::default()), Ok(()));
         let c = (3 * 5 + 2) * 6 + 4;
-        fluid.state.mass[c] = 1.2;
-        let e = fluid.check(&WatchdogLimits::default()).expect_err("fill 1.2");
+        fluid.state.mass[c] = 2.2;
+        let e = fluid.check(&WatchdogLimits::default()).expect_err("fill 2.2");
         assert_eq!((e.cell, e.quantity), ([4, 2, 3], Quantity::Fill));
         assert!(e.to_string().contains("interface fill"), "{e}");
         assert_eq!(fluid.set_flag([0, 0, 0], flags::GAS), Err(ConfigError::Flag(flags::GAS)));

@@ -111,10 +111,7 @@ impl LbmSetup {
             origin: d.min,
             faces: [Faces::Walls; 3],
             params,
-            // A fast front hands interface cells more excess than one step of
-            // conversions absorbs (fill 1.39 at the paper's Δt, converted the
-            // step after); only a fill off by a whole cell means trouble.
-            limits: WatchdogLimits { max_mach: lbm.mach_limit, fill_margin: 1.0, ..WatchdogLimits::default() },
+            limits: WatchdogLimits { max_mach: lbm.mach_limit, ..WatchdogLimits::default() },
             gates: Vec::new(),
             density: first.density,
             kinematic_viscosity: nu,

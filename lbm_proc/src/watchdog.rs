@@ -20,14 +20,15 @@ pub struct WatchdogLimits {
     /// How far an interface cell's fill ε may stray beyond [−κ, 1 + κ]. The
     /// conversions leave every interface cell inside that band except for
     /// the excess mass a converted neighbour hands over in the same step (the
-    /// cell converts in the next one). Default 0.1; measured extremes are in
-    /// docs/lbm.md (Watchdog).
+    /// cell converts in the next one): up to 0.39 at the paper's Δt on a fast
+    /// front. Default 1.0: only a fill off by a whole cell means trouble;
+    /// measured extremes are in docs/lbm.md (Watchdog).
     pub fill_margin: f64,
 }
 
 impl Default for WatchdogLimits {
     fn default() -> Self {
-        WatchdogLimits { min_density: 0.5, max_density: 2.0, max_mach: 0.3, fill_margin: 0.1 }
+        WatchdogLimits { min_density: 0.5, max_density: 2.0, max_mach: 0.3, fill_margin: 1.0 }
     }
 }
 
