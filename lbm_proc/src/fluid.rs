@@ -800,21 +800,7 @@ impl<T: Real> Kernel<'_, T> {
             // lanes, hold finite leftovers and are not written.
             let lanes = n.next_multiple_of(8).min(LANES);
             if k < k_end && self.forced[k].cell < own + n {
-                // Only chunks holding a forced cell pay for per-lane forces.
-                for a in 0..3 {
-                    accel[a] = [self.coef.accel[a]; LANES];
-                }
-                while k < k_end && self.forced[k].cell < own + n {
-                    let cell = self.forced[k];
-                    if flags::is_liquid(self.flags[cell.cell]) {
-                        let l = cell.cell - own;
-                        let force = self.direct_force(&cell, l, f, accel);
-                        // SAFETY: entry k's cell lies in plane z, which only this task writes.
-                        unsafe { applied.slice(k, 1)[0] = force };
-                    }
-                    k += 1;
-                }
-                collide::<T, TRT, true>(f, lanes, &self.coef, accel);
+                k = self.forced_chunk::<TRT>(k, k_end, own, n, lanes, applied, f, accel);
             } else {
                 collide::<T, TRT, false>(f, lanes, &self.coef, accel);
             }
@@ -835,6 +821,37 @@ impl<T: Real> Kernel<'_, T> {
         }
     }
 
+    /// Collides a chunk holding forced cells (entries `k..` up to the
+    /// chunk's end) with per-lane accelerations; returns the next entry.
+    /// Out of line so that the unforced chunk loop keeps its code.
+    #[inline(never)]
+    fn forced_chunk<const TRT: bool>(
+        &self,
+        mut k: usize,
+        k_end: usize,
+        own: usize,
+        n: usize,
+        lanes: usize,
+        applied: &SharedOut<AppliedForce>,
+        f: &mut [[T; LANES]; Q],
+        accel: &mut [[T; LANES]; 3],
+    ) -> usize {
+        for a in 0..3 {
+            accel[a] = [self.coef.accel[a]; LANES];
+        }
+        while k < k_end && self.forced[k].cell < own + n {
+            let cell = self.forced[k];
+            if flags::is_liquid(self.flags[cell.cell]) {
+                let force = self.direct_force(&cell, cell.cell - own, f, accel);
+                // SAFETY: entry k's cell lies in plane z, which only this task writes.
+                unsafe { applied.slice(k, 1)[0] = force };
+            }
+            k += 1;
+        }
+        collide::<T, TRT, true>(f, lanes, &self.coef, accel);
+        k
+    }
+
     /// The direct force density on forced liquid cell `cell` (lane `l` of
     /// `f`, which holds its pulled pre-collision populations, gas pulls
     /// already rebuilt), folded into the lane's acceleration for the
@@ -846,7 +863,7 @@ impl<T: Real> Kernel<'_, T> {
     /// Guo's shifted velocity is u = (Σ f e + (ρa + F_IB)/2)/ρ, so w = 1 gives
     /// u = U exactly in this step; w < 1 moves u that fraction of the way.
     /// The clamp keeps the gain at most 1 (beyond it u would overshoot U).
-    #[inline(never)]
+    #[inline(always)]
     fn direct_force(
         &self,
         cell: &ForcedCell,
