@@ -28,7 +28,9 @@
 //! The free surface (mass tracking, [`free_surface`]) adds interface and gas
 //! cells: the kernel rebuilds the populations an interface cell pulls from
 //! gas and accumulates its mass exchange in the same pass; conversions run
-//! after it. Particle forcing (Eq. 5) will add its own stage.
+//! after it. Direct forcing of particle-covered cells (Eq. 5, [`ForcedCell`],
+//! driven by [`crate::coupling`]) is computed in the same pass, between the
+//! pull and the collision, for the listed cells only.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -37,7 +39,9 @@ use crate::lattice::{E, OPP, Q, W};
 use crate::real::Real;
 use crate::watchdog::{Instability, Quantity, WatchdogLimits};
 
+mod forcing;
 mod free_surface;
+pub use forcing::{AppliedForce, ForcedCell};
 pub use free_surface::{InterfaceCell, Sample};
 
 /// Cell flags. Liquid cells (fluid, interface) have bit 0 clear, so the
@@ -176,6 +180,8 @@ pub enum ConfigError {
     OutOfBox { cell: [usize; 3], dims: [usize; 3] },
     #[error("state is inconsistent: {0}")]
     State(String),
+    #[error("forced cell {cell}: {why}")]
+    Forcing { cell: usize, why: &'static str },
 }
 
 /// Everything needed to continue a run exactly (with [`FluidParams`]).
@@ -228,6 +234,8 @@ struct Scratch<T> {
     fluid_count: usize,
     /// Conversion work lists, reused every step.
     lists: free_surface::Lists,
+    /// Direct forcing for the next steps and what it did in the last one.
+    forcing: forcing::Forcing,
 }
 
 /// A D3Q19 fluid in a box of cells.
@@ -308,6 +316,7 @@ impl<T: Real> Fluid<T> {
             interface: Vec::new(),
             fluid_count: 0,
             lists: Default::default(),
+            forcing: Default::default(),
         };
         let mut fluid = Fluid { state, params, scratch };
         fluid.rebuild_lists();
@@ -423,7 +432,9 @@ impl<T: Real> Fluid<T> {
         }
         let rho = 1.0 + drho;
         let acc = self.params.acceleration;
-        (rho, std::array::from_fn(|a| j[a] / rho - 0.5 * acc[a]))
+        // A forced cell's stored momentum also holds half its last direct force.
+        let ib = self.scratch.forcing.last_force(c);
+        (rho, std::array::from_fn(|a| (j[a] - 0.5 * ib[a]) / rho - 0.5 * acc[a]))
     }
 
     /// Density ρ = Σ f_i of cell index `c`, summed as [`Fluid::moments_at`] does.
@@ -534,6 +545,7 @@ impl<T: Real> Fluid<T> {
         if self.scratch.rows_stale {
             self.classify_rows();
         }
+        self.scratch.forcing.start_step();
         match self.params.collision {
             Collision::Bgk => self.stream_collide::<false>(),
             Collision::Trt { .. } => self.stream_collide::<true>(),
@@ -627,9 +639,13 @@ impl<T: Real> Fluid<T> {
 
     /// Stage `stream_collide`: reads `state.populations`, writes `scratch.next`
     /// for every fluid and interface cell (non-liquid cells of `next` are left
-    /// untouched), and adds each interface cell's mass exchange to its mass.
+    /// untouched), adds each interface cell's mass exchange to its mass, and
+    /// writes the direct force of each forced liquid cell.
     fn stream_collide<const TRT: bool>(&mut self) {
         let [nx, ny, nz] = self.state.dims;
+        let coef = self.coefficients();
+        let forcing = &mut self.scratch.forcing;
+        let applied = SharedOut(forcing.applied.as_mut_ptr(), forcing.applied.len());
         let kernel = Kernel {
             src: &self.state.populations,
             flags: &self.state.flags,
@@ -640,15 +656,18 @@ impl<T: Real> Fluid<T> {
             nz,
             ncells: nx * ny * nz,
             faces: self.state.faces,
-            coef: self.coefficients(),
+            coef,
             accel: self.params.acceleration,
+            forced: &forcing.cells,
+            forced_rows: &forcing.rows,
         };
         let out = SharedOut(self.scratch.next.as_mut_ptr(), self.scratch.next.len());
         let mass = SharedOut(self.state.mass.as_mut_ptr(), self.state.mass.len());
         (0..nz).into_par_iter().for_each(|z| {
             let mut buffer = [[T::ZERO; LANES]; Q];
+            let mut accel = [[T::ZERO; LANES]; 3];
             for y in 0..ny {
-                kernel.row::<TRT>(y, z, &out, &mass, &mut buffer);
+                kernel.row::<TRT>(y, z, &out, &mass, &applied, &mut buffer, &mut accel);
             }
         });
     }
@@ -712,6 +731,10 @@ struct Kernel<'a, T> {
     faces: [Faces; 3],
     coef: Coefficients<T>,
     accel: [f64; 3],
+    /// Forced cells, ascending index, and where each row's run of them
+    /// starts (`forced_rows[r]..forced_rows[r + 1]`; empty without forcing).
+    forced: &'a [ForcedCell],
+    forced_rows: &'a [usize],
 }
 
 impl<T: Real> Kernel<'_, T> {
@@ -723,7 +746,9 @@ impl<T: Real> Kernel<'_, T> {
         z: usize,
         out: &SharedOut<T>,
         mass: &SharedOut<f64>,
+        applied: &SharedOut<AppliedForce>,
         f: &mut [[T; LANES]; Q],
+        accel: &mut [[T; LANES]; 3],
     ) {
         let class = self.rows[z * self.ny + y];
         if class & ROW_ANY_LIQUID == 0 {
@@ -743,9 +768,18 @@ impl<T: Real> Kernel<'_, T> {
                 _ => return,
             }
         };
+        // This row's forced cells; `k` walks them along with the chunks.
+        let (mut k, k_end) = match self.forced_rows.get(z * self.ny + y..z * self.ny + y + 2) {
+            Some(&[a, b]) => (a, b),
+            _ => (0, 0),
+        };
         while x0 < end {
             let n = LANES.min(end - x0);
             let own = row_start + x0;
+            // Forced cells before this chunk lie outside the liquid span or in skipped chunks.
+            while k < k_end && self.forced[k].cell < own {
+                k += 1;
+            }
             // Chunks of gas and wall in a mixed row (the liquid front in a
             // long flume) cost one scan of their flags.
             if !all_fluid && !self.flags[own..own + n].iter().any(|&fl| flags::is_liquid(fl)) {
@@ -764,7 +798,12 @@ impl<T: Real> Kernel<'_, T> {
             }
             // Whole vectors of lanes; the lanes past n, and gas or wall
             // lanes, hold finite leftovers and are not written.
-            collide::<T, TRT>(f, n.next_multiple_of(8).min(LANES), &self.coef);
+            let lanes = n.next_multiple_of(8).min(LANES);
+            if k < k_end && self.forced[k].cell < own + n {
+                k = self.forced_chunk::<TRT>(k, k_end, own, n, lanes, applied, f, accel);
+            } else {
+                collide::<T, TRT, false>(f, lanes, &self.coef, accel);
+            }
             for i in 0..Q {
                 // SAFETY: cell indices own..own+n lie in plane z, which only this task writes.
                 let dst = unsafe { out.slice(i * self.ncells + own, n) };
@@ -780,6 +819,75 @@ impl<T: Real> Kernel<'_, T> {
             }
             x0 += n;
         }
+    }
+
+    /// Collides a chunk holding forced cells (entries `k..` up to the
+    /// chunk's end) with per-lane accelerations; returns the next entry.
+    /// Out of line so that the unforced chunk loop keeps its code.
+    #[inline(never)]
+    fn forced_chunk<const TRT: bool>(
+        &self,
+        mut k: usize,
+        k_end: usize,
+        own: usize,
+        n: usize,
+        lanes: usize,
+        applied: &SharedOut<AppliedForce>,
+        f: &mut [[T; LANES]; Q],
+        accel: &mut [[T; LANES]; 3],
+    ) -> usize {
+        for a in 0..3 {
+            accel[a] = [self.coef.accel[a]; LANES];
+        }
+        while k < k_end && self.forced[k].cell < own + n {
+            let cell = self.forced[k];
+            if flags::is_liquid(self.flags[cell.cell]) {
+                let force = self.direct_force(&cell, cell.cell - own, f, accel);
+                // SAFETY: entry k's cell lies in plane z, which only this task writes.
+                unsafe { applied.slice(k, 1)[0] = force };
+            }
+            k += 1;
+        }
+        collide::<T, TRT, true>(f, lanes, &self.coef, accel);
+        k
+    }
+
+    /// The direct force density on forced liquid cell `cell` (lane `l` of
+    /// `f`, which holds its pulled pre-collision populations, gas pulls
+    /// already rebuilt), folded into the lane's acceleration for the
+    /// collision:
+    ///
+    /// F_IB = w [2(ρU − Σ f e) − ρa], w = weight × fill (fill 1 in a fluid
+    /// cell, the old-level ε clamped to [0, 1] in an interface cell).
+    ///
+    /// Guo's shifted velocity is u = (Σ f e + (ρa + F_IB)/2)/ρ, so w = 1 gives
+    /// u = U exactly in this step; w < 1 moves u that fraction of the way.
+    /// The clamp keeps the gain at most 1 (beyond it u would overshoot U).
+    #[inline(always)]
+    fn direct_force(
+        &self,
+        cell: &ForcedCell,
+        l: usize,
+        f: &[[T; LANES]; Q],
+        accel: &mut [[T; LANES]; 3],
+    ) -> AppliedForce {
+        let fill = if self.flags[cell.cell] == flags::INTERFACE { self.fill[cell.cell].clamp(0.0, 1.0) } else { 1.0 };
+        let w = cell.weight * fill;
+        let mut drho = 0.0;
+        let mut j = [0.0; 3];
+        for i in 0..Q {
+            let g = f[i][l].to_f64();
+            drho += g;
+            for a in 0..3 {
+                j[a] += E[i][a] as f64 * g;
+            }
+        }
+        let rho = 1.0 + drho;
+        let force: [f64; 3] = std::array::from_fn(|a| w * (2.0 * (rho * cell.target[a] - j[a]) - rho * self.accel[a]));
+        for a in 0..3 {
+            accel[a][l] = T::from_f64(self.accel[a] + force[a] / rho);
+        }
+        AppliedForce { cell: cell.cell, force, liquid: w * rho }
     }
 
     /// The free-surface part of the pull for interface cell (x, y, z), lane
@@ -892,14 +1000,23 @@ impl<T: Real> Kernel<'_, T> {
 ///   ω+ = 1/τ, g− with ω− = 1/(½ + Λ/(τ − ½)); BGK is ω− = ω+. Guo's source
 ///   w_i[3(e−u) + 9(e·u)e]·F splits into S+ = w_i ρ[9(e·u)(e·a) − 3u·a] and
 ///   S− = 3w_i ρ e·a, weighted (1 − ω±/2).
+///
+/// `FORCED`: the acceleration of lane l is `accel[·][l]` (uniform a plus a
+/// direct force over ρ) instead of the uniform `c.accel`; the unforced
+/// instance compiles to the same code as before forcing existed.
 #[inline(always)]
-fn collide<T: Real, const TRT: bool>(f: &mut [[T; LANES]; Q], lanes: usize, c: &Coefficients<T>) {
+fn collide<T: Real, const TRT: bool, const FORCED: bool>(
+    f: &mut [[T; LANES]; Q],
+    lanes: usize,
+    c: &Coefficients<T>,
+    accel: &[[T; LANES]; 3],
+) {
     let k = |x: f64| T::from_f64(x);
     let (half, one, third) = (k(0.5), k(1.0), k(1.0 / 3.0));
     let (w0, w1, w2) = (k(W[0]), k(W[1]), k(W[7]));
     let (c3, c45, c15, c9) = (k(3.0), k(4.5), k(1.5), k(9.0));
-    let [ax, ay, az] = c.accel;
     for l in 0..lanes {
+        let [ax, ay, az] = if FORCED { [accel[0][l], accel[1][l], accel[2][l]] } else { c.accel };
         // Pair sums and differences, one per pair (2p+1, 2p+2).
         let s: [T; 9] = std::array::from_fn(|p| f[2 * p + 1][l] + f[2 * p + 2][l]);
         let d: [T; 9] = std::array::from_fn(|p| f[2 * p + 1][l] - f[2 * p + 2][l]);

@@ -1,6 +1,8 @@
 //! D3Q19 lattice Boltzmann fluid for the DEM–LBM method of Ceccato et al. 2020 (§3.1).
 //!
 //! * [`units`]: the one SI ↔ lattice converter, τ from viscosity;
+//! * [`coupling`]: particle coupling (Eq. 5), direct forcing of the cells
+//!   covered by spheres, force, torque and buoyancy on each sphere;
 //! * [`lattice`]: D3Q19 velocities, weights, opposites, equilibrium;
 //! * [`fluid`]: the state and its fused stream–collide step (BGK or TRT,
 //!   Smagorinsky Eq. 4, Guo forcing, half-way bounce-back, periodic faces),
@@ -14,6 +16,7 @@
 //! Everything inside is in lattice units (Δx = Δt = ρ0 = 1). See `docs/lbm.md`.
 
 pub mod bench;
+pub mod coupling;
 pub mod fluid;
 pub mod lattice;
 pub mod real;
@@ -22,6 +25,7 @@ pub mod setup;
 pub mod units;
 pub mod watchdog;
 
+pub use coupling::{Coupling, CouplingError, Sphere, SphereForce};
 pub use fluid::{Collision, Faces, Fluid, FluidParams, FluidState, InterfaceCell, Sample};
 pub use units::Units;
 pub use watchdog::{Instability, WatchdogLimits};

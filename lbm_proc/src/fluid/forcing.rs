@@ -1,0 +1,140 @@
+//! Direct forcing of listed cells toward target velocities (the fluid side of
+//! the particle coupling, Eq. 5; [`crate::coupling`] builds the list).
+//!
+//! The forced cells are kept in ascending index order with, per x-row, the
+//! start of the row's run, so the kernel walks them alongside its chunks and
+//! rows without forced cells keep the unforced code path. The kernel writes
+//! what it applied to each cell into a parallel list; entries lie in the
+//! plane of their cell, so each is written by one task only and the result
+//! does not depend on the thread count.
+
+use super::{ConfigError, Fluid};
+use crate::real::Real;
+
+/// A cell to be pushed toward a target velocity in the next steps
+/// (lattice units).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ForcedCell {
+    /// Cell index, x fastest: `(k * ny + j) * nx + i`.
+    pub cell: usize,
+    /// How far the velocity is moved toward `target` per step, in [0, 1]
+    /// (the covered fraction); an interface cell's fill multiplies it.
+    pub weight: f64,
+    /// The velocity the cell is forced toward.
+    pub target: [f64; 3],
+}
+
+/// What the direct forcing did to one forced cell in the last step.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct AppliedForce {
+    /// Cell index.
+    pub cell: usize,
+    /// F_IB, the force density added to the fluid (lattice units: per cell,
+    /// so also the force on the cell's liquid); 0 in gas and wall cells.
+    pub force: [f64; 3],
+    /// weight × fill × ρ: the liquid mass the forcing acted on (lattice
+    /// units, ρ0Δx³); 0 in gas and wall cells.
+    pub liquid: f64,
+}
+
+/// The forcing list and its per-step output, reused (no allocation once grown).
+#[derive(Debug, Clone, Default)]
+pub(super) struct Forcing {
+    /// Ascending cell index, unique.
+    pub(super) cells: Vec<ForcedCell>,
+    /// `rows[r]..rows[r + 1]`: the entries of x-row r; empty without forcing.
+    pub(super) rows: Vec<usize>,
+    /// Parallel to `cells` during and after a step: what was applied.
+    pub(super) applied: Vec<AppliedForce>,
+}
+
+impl Forcing {
+    /// Resets the output list to the current cells with zero force (the
+    /// kernel writes liquid cells only; gas, wall and skipped rows stay 0).
+    pub(super) fn start_step(&mut self) {
+        self.applied.clear();
+        self.applied.extend(self.cells.iter().map(|c| AppliedForce { cell: c.cell, ..Default::default() }));
+    }
+
+    /// The force applied to cell index `c` in the last step (0 if unforced).
+    pub(super) fn last_force(&self, c: usize) -> [f64; 3] {
+        match self.applied.binary_search_by_key(&c, |a| a.cell) {
+            Ok(k) => self.applied[k].force,
+            Err(_) => [0.0; 3],
+        }
+    }
+}
+
+impl<T: Real> Fluid<T> {
+    /// Replaces the direct forcing applied from the next step on (until
+    /// replaced or cleared). `cells` must come in strictly ascending cell
+    /// order, inside the box, with weight in [0, 1] and a finite target;
+    /// otherwise the forcing is cleared and the first offending cell named.
+    ///
+    /// In each step every listed fluid or interface cell receives, between
+    /// the pull and the collision, the force density
+    /// F_IB = w [2(ρU − Σ f e) − ρa] (w = weight × fill), so that its
+    /// velocity becomes U when w = 1; gas and wall cells are never forced.
+    /// [`Fluid::applied_forcing`] then reports every F_IB. Not part of
+    /// [`super::FluidState`]: the coupling sets it before every step.
+    pub fn set_direct_forcing(&mut self, cells: impl IntoIterator<Item = ForcedCell>) -> Result<(), ConfigError> {
+        let ncells = self.ncells();
+        let [nx, ny, nz] = self.state.dims;
+        let forcing = &mut self.scratch.forcing;
+        forcing.cells.clear();
+        forcing.rows.clear();
+        let check = || {
+            for cell in cells {
+                let why = if cell.cell >= ncells {
+                    Some("outside the box")
+                } else if forcing.cells.last().is_some_and(|last| last.cell >= cell.cell) {
+                    Some("not in strictly ascending order")
+                } else if !(0.0..=1.0).contains(&cell.weight) {
+                    Some("weight outside [0, 1]")
+                } else if !cell.target.iter().all(|u| u.is_finite()) {
+                    Some("target velocity not finite")
+                } else {
+                    None
+                };
+                if let Some(why) = why {
+                    return Err(ConfigError::Forcing { cell: cell.cell, why });
+                }
+                forcing.cells.push(cell);
+            }
+            Ok(())
+        };
+        if let Err(e) = check() {
+            forcing.cells.clear();
+            return Err(e);
+        }
+        if !forcing.cells.is_empty() {
+            // Counting pass: rows[r] = number of entries in rows < r.
+            forcing.rows.resize(ny * nz + 1, 0);
+            let mut k = 0;
+            for r in 0..=ny * nz {
+                forcing.rows[r] = k;
+                while k < forcing.cells.len() && forcing.cells[k].cell < (r + 1) * nx {
+                    k += 1;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Removes the direct forcing.
+    pub fn clear_direct_forcing(&mut self) {
+        self.scratch.forcing.cells.clear();
+        self.scratch.forcing.rows.clear();
+    }
+
+    /// The cells forced from the next step on.
+    pub fn direct_forcing(&self) -> &[ForcedCell] {
+        &self.scratch.forcing.cells
+    }
+
+    /// What the forcing did in the last step, one entry per forced cell in
+    /// ascending cell order (empty before the first forced step).
+    pub fn applied_forcing(&self) -> &[AppliedForce] {
+        &self.scratch.forcing.applied
+    }
+}
