@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use clap::{Parser, Subcommand};
 
-use dem_proc::run::{run, Progress, RunError, RunOptions};
-use schemas::process::{die_with_parent, progress_line, stop_flag};
+use dem_proc::run::{run, Progress, RunError};
+use schemas::process::{die_with_parent, progress_line, stop_flag, RunArgs, RunOptions};
 use schemas::{say, tell, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
 
 #[derive(Parser)]
@@ -21,28 +21,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Run a scene: deposit (or load) the packing, open the gates, record to OUT/dem.mcap.
-    Run {
-        /// Scene file (TOML).
-        scene: PathBuf,
-        /// Output directory.
-        #[arg(long, default_value = "runs/dem")]
-        out: PathBuf,
-        /// Override a scene value, e.g. --set output.end_time=0.2 (repeatable).
-        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
-        set: Vec<String>,
-        /// Worker threads (default: all cores). Results do not depend on it.
-        #[arg(long)]
-        threads: Option<usize>,
-        /// Skip the MCAP recording (to measure what recording costs).
-        #[arg(long)]
-        no_record: bool,
-        /// Machine-readable progress on stdout, one JSON object per line (used by `coupler`).
-        #[arg(long)]
-        progress_json: bool,
-        /// Stop when the parent process dies (set by `coupler`).
-        #[arg(long)]
-        supervised: bool,
-    },
+    Run(RunArgs),
     /// Throughput of the collapse: deposit (or load) the packing, open the
     /// gates, time STEPS steps without recording; prints one JSON line.
     Bench {
@@ -181,7 +160,7 @@ fn main() -> ExitCode {
             })();
             result.err().unwrap_or(ExitCode::SUCCESS)
         }
-        Command::Run { scene, out, set, threads, no_record, progress_json, supervised } => {
+        Command::Run(RunArgs { scene, out, set, threads, no_record, progress_json, supervised }) => {
             let stop = match stop_flag() {
                 Ok(s) => s,
                 Err(e) => {
@@ -200,7 +179,7 @@ fn main() -> ExitCode {
                 return code;
             }
             let mut reporter = Reporter { json: progress_json, started: Instant::now() };
-            let opts = RunOptions { out_dir: out, record: !no_record };
+            let opts = RunOptions { out_dir: out.unwrap_or_else(|| PathBuf::from("runs/dem")), record: !no_record };
             match run(&scene, &opts, &stop, &mut reporter) {
                 Ok(summary) => {
                     if progress_json {

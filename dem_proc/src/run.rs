@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use schemas::measures::{coordination_shares, deposit_profile, front_position, FrontSample};
 use schemas::metrics::DemMetrics;
+use schemas::process::RunOptions;
 use schemas::record::{metadata, timestamp, topics, ChannelId, RecordError, Recorder, RecorderBuilder};
 use schemas::scene::Scene;
 use schemas::summary::{DemDetails, RunSummary, Throughput};
@@ -115,14 +116,6 @@ pub trait Progress {
     fn deposition(&mut self, t: f64, t_max: f64);
     fn collapse(&mut self, t: f64, t_end: f64, steps: u64);
     fn log(&mut self, message: &str);
-}
-
-/// Options that are not part of the physics.
-#[derive(Debug, Clone)]
-pub struct RunOptions {
-    pub out_dir: PathBuf,
-    /// Record to MCAP (off only for benchmarks measuring the recording cost).
-    pub record: bool,
 }
 
 struct Channels {

@@ -8,9 +8,9 @@ use clap::{Parser, Subcommand};
 
 use lbm_proc::bench::{bulk_mlups, bytes_per_update, triad_bandwidth};
 use lbm_proc::fluid::{Collision, FluidParams};
-use lbm_proc::run::{initial_fluid, run, Progress, RunOptions};
+use lbm_proc::run::{initial_fluid, run, Progress};
 use lbm_proc::setup::LbmSetup;
-use schemas::process::{die_with_parent, progress_line, stop_flag};
+use schemas::process::{die_with_parent, progress_line, stop_flag, RunArgs, RunOptions};
 use schemas::{say, tell, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
 
 #[derive(Parser)]
@@ -23,28 +23,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Run a fluid scene and record it to OUT/lbm.mcap.
-    Run {
-        /// Scene file (TOML).
-        scene: PathBuf,
-        /// Output directory.
-        #[arg(long, default_value = "runs/lbm")]
-        out: PathBuf,
-        /// Override a scene value, e.g. --set output.end_time=0.2 (repeatable).
-        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
-        set: Vec<String>,
-        /// Worker threads (default: all cores). Results do not depend on it.
-        #[arg(long)]
-        threads: Option<usize>,
-        /// Skip the MCAP recording (to measure what recording costs).
-        #[arg(long)]
-        no_record: bool,
-        /// Machine-readable progress on stdout, one JSON object per line (used by `coupler`).
-        #[arg(long)]
-        progress_json: bool,
-        /// Stop when the parent process dies (set by `coupler`).
-        #[arg(long)]
-        supervised: bool,
-    },
+    Run(RunArgs),
     /// Throughput: a periodic bulk box (no free surface) against a STREAM
     /// triad measured in the same run, on 1 and 2 threads; with --scene, also
     /// STEPS steps of that scene counting only the cells updated.
@@ -152,7 +131,7 @@ fn main() -> ExitCode {
         Command::Bench { bulk, scene, set, steps } => {
             bench(&bulk, scene.as_ref(), &set, steps).err().unwrap_or(ExitCode::SUCCESS)
         }
-        Command::Run { scene, out, set, threads, no_record, progress_json, supervised } => {
+        Command::Run(RunArgs { scene, out, set, threads, no_record, progress_json, supervised }) => {
             let stop = match stop_flag() {
                 Ok(s) => s,
                 Err(e) => {
@@ -174,7 +153,7 @@ fn main() -> ExitCode {
                 }
             }
             let mut reporter = Reporter { json: progress_json, started: Instant::now() };
-            let opts = RunOptions { out_dir: out, record: !no_record };
+            let opts = RunOptions { out_dir: out.unwrap_or_else(|| PathBuf::from("runs/lbm")), record: !no_record };
             match run(&scene, &opts, &stop, &mut reporter) {
                 Ok(summary) => {
                     if progress_json {

@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use schemas::measures::{front_position, FrontSample};
 use schemas::metrics::LbmMetrics;
+use schemas::process::RunOptions;
 use schemas::record::{metadata, timestamp, topics, ChannelId, RecordError, Recorder, RecorderBuilder};
 use schemas::scene::Scene;
 use schemas::summary::{LbmDetails, RunSummary, Throughput};
@@ -64,14 +65,6 @@ pub enum RunError {
 pub trait Progress {
     fn flow(&mut self, t: f64, t_end: f64, steps: u64);
     fn log(&mut self, message: &str);
-}
-
-/// Options that are not part of the physics.
-#[derive(Debug, Clone)]
-pub struct RunOptions {
-    pub out_dir: PathBuf,
-    /// Record to MCAP (off only for benchmarks measuring the recording cost).
-    pub record: bool,
 }
 
 /// Where `lbm_proc` writes its recording and its summary.

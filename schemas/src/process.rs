@@ -2,6 +2,7 @@
 //! stopping at a step boundary on SIGINT/SIGTERM, dying with its supervisor,
 //! and the progress lines `coupler` reads.
 
+use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
@@ -52,4 +53,37 @@ pub fn progress_line(phase: &str, t: f64, t_end: f64, steps: u64, wall: f64) -> 
     format!(
         "{{\"event\":\"progress\",\"phase\":\"{phase}\",\"t\":{t},\"t_end\":{t_end},\"steps\":{steps},\"wall\":{wall}}}"
     )
+}
+
+/// The arguments of every solver's `run` subcommand (what `coupler` passes).
+#[derive(Debug, Clone, clap::Args)]
+pub struct RunArgs {
+    /// Scene file (TOML).
+    pub scene: PathBuf,
+    /// Output directory (default: runs/<solver>, e.g. runs/dem).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Override a scene value, e.g. --set output.end_time=0.2 (repeatable).
+    #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+    pub set: Vec<String>,
+    /// Worker threads (default: all cores). Results do not depend on it.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Skip the MCAP recording (to measure what recording costs).
+    #[arg(long)]
+    pub no_record: bool,
+    /// Machine-readable progress on stdout, one JSON object per line (used by `coupler`).
+    #[arg(long)]
+    pub progress_json: bool,
+    /// Stop when the parent process dies (set by `coupler`).
+    #[arg(long)]
+    pub supervised: bool,
+}
+
+/// Options of a run that are not part of the physics.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    pub out_dir: PathBuf,
+    /// Record to MCAP (off only for benchmarks measuring the recording cost).
+    pub record: bool,
 }
