@@ -158,8 +158,9 @@ fn print_lbm(scene: &Scene, warnings: &mut Vec<String>) {
     for shear in [(g / h0).sqrt(), 100.0] {
         let nu_t = (lbm.smagorinsky * dx).powi(2) * shear;
         println!(
-            "viscosity    at shear {shear:.1} 1/s: nu = {nu:.3e} molecular + {nu_t:.3e} eddy = {:.3e} m²/s (tau {:.6})",
+            "viscosity    at shear {shear:.1} 1/s: nu = {nu:.3e} molecular + {nu_t:.3e} eddy = {:.3e} m²/s = {:.3e} lattice (tau {:.6})",
             nu + nu_t,
+            units.viscosity_to_lattice(nu + nu_t),
             units.tau_from_viscosity(nu + nu_t).unwrap_or(f64::NAN)
         );
     }

@@ -21,6 +21,22 @@ fn check_reports_time_step_and_steps_per_contact() {
 }
 
 #[test]
+fn check_reports_the_lattice_of_a_fluid_scene() {
+    let out = coupler().args(["check", "scenes/ceccato2020/water_h060.toml"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("lbm (lbm_proc)"), "{text}");
+    // 0.70 x 0.05 x 0.12 m at 0.6 mm (0.05 m rounds to 83 cells).
+    assert!(text.contains("1167 x 83 x 200"), "{text}");
+    // tau = 1/2 + 3 nu dt/dx^2 = 0.5 + 3e-6 * 8e-5 / 3.6e-7.
+    assert!(text.contains("tau0 = 0.500667"), "{text}");
+    // Eq. 4 at sqrt(g/H0) = 12.8 1/s: (0.16 * 6e-4)^2 * 12.79 = 1.178e-7 m²/s.
+    assert!(text.contains("1.178e-7 eddy"), "{text}");
+    // 2 sqrt(g H0) = 1.534 m/s = 0.2046 lattice = Mach 0.354: warned, not above the 0.5 limit.
+    assert!(text.contains("Mach 0.354") && text.contains("warning      2 sqrt(g H0)"), "{text}");
+}
+
+#[test]
 fn bad_scene_exits_2_naming_the_key() {
     let out =
         coupler().args(["check", "scenes/ceccato2020/dry_h060.toml", "--set", "dem.friction=-0.2"]).output().unwrap();
