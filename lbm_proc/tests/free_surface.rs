@@ -286,7 +286,7 @@ fn paper_water_case_collapsing_block_stays_bounded() {
 }
 
 #[test]
-#[ignore = "paper-size block (0.04 x 0.05 x 0.06 m in a 0.3 m box, 5 M cells, 6250 steps): tens of minutes on 2 cores"]
+#[ignore = "paper-size block (0.04 x 0.05 x 0.06 m in a 0.3 m box, 5 M cells, 6250 steps): ~8 min on 2 cores; fails at 0.4 s where the front splashes on the end wall (docs/lbm.md)"]
 fn paper_water_case_full_block() {
     let (units, params) = paper_water();
     let cells = |m: f64| units.length_to_lattice(m).round() as usize;
