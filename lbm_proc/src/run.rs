@@ -268,6 +268,7 @@ pub fn run(
             mass_initial: mass_si(mass_initial),
             mass_final: mass_si(mass_final),
             mass_relative_change: (mass_final - mass_initial) / mass_initial,
+            pending_mass_final: mass_si(fluid.pending_excess()),
             max_mach: frames.max_mach,
             recording_fraction: frames.seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),
@@ -436,6 +437,7 @@ fn record_frame(
             active_cells: fluid.active_cells() as f64,
             interface_cells: interface as f64,
             mlups,
+            pending_mass: fluid.pending_excess() * si_mass,
         };
         rec.log(ch.metrics, t, &metrics)?;
     }

@@ -59,4 +59,7 @@ pub struct LbmMetrics {
     pub interface_cells: f64,
     /// Throughput since the last frame, million lattice updates per second (active cells).
     pub mlups: f64,
+    /// Liquid mass held as excess that found no receiving cell (emptied
+    /// droplets with no liquid neighbour), kg; part of `liquid_mass`.
+    pub pending_mass: f64,
 }

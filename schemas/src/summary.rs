@@ -111,6 +111,8 @@ pub struct LbmDetails {
     pub mass_initial: f64,
     pub mass_final: f64,
     pub mass_relative_change: f64,
+    /// Part of `mass_final` held as excess that found no receiving cell, kg.
+    pub pending_mass_final: f64,
     /// Largest |u|/c_s seen on the recorded frames.
     pub max_mach: f64,
     /// Fraction of the run's wall time spent handing frames to the recorder.
