@@ -8,8 +8,8 @@ use std::time::Instant;
 use clap::{Parser, Subcommand};
 
 use dem_proc::run::{run, Progress, RunError};
-use schemas::process::{die_with_parent, progress_line, stop_flag, RunArgs, RunOptions};
-use schemas::{say, tell, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
+use schemas::process::{finish_run, progress_line, set_global_threads, start_run, RunArgs, RunOptions};
+use schemas::{say, tell, Scene, EXIT_INTERRUPTED};
 
 #[derive(Parser)]
 #[command(name = "dem_proc", version, about = "3D DEM solver process (spheres, Ceccato et al. 2020 contact law)")]
@@ -77,25 +77,13 @@ impl Progress for Reporter {
 }
 
 fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
-    let scene = Scene::load(path, set).map_err(|e| {
-        tell!("dem_proc: invalid scene {}:\n{e}", path.display());
-        ExitCode::from(EXIT_BAD_SCENE as u8)
-    })?;
-    if scene.spec.particles.is_empty() {
-        tell!("dem_proc: the scene has no [[particles]] blocks; nothing for the DEM to do (fluid-only scenes run in lbm_proc)");
-        return Err(ExitCode::from(EXIT_BAD_SCENE as u8));
-    }
-    Ok(scene)
+    schemas::process::load_scene("dem_proc", path, set, no_particles)
 }
 
-fn set_threads(threads: Option<usize>) -> Result<(), ExitCode> {
-    if let Some(n) = threads {
-        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().map_err(|e| {
-            tell!("dem_proc: cannot set {n} threads: {e}");
-            ExitCode::FAILURE
-        })?;
-    }
-    Ok(())
+fn no_particles(scene: &Scene) -> Option<&'static str> {
+    scene.spec.particles.is_empty().then_some(
+        "the scene has no [[particles]] blocks; nothing for the DEM to do (fluid-only scenes run in lbm_proc)",
+    )
 }
 
 /// The packing of a scene and the world ready to collapse.
@@ -116,7 +104,7 @@ fn main() -> ExitCode {
         Command::Bench { scene, set, steps, threads } => {
             let result = (|| {
                 let scene = load_scene(&scene, &set)?;
-                set_threads(threads)?;
+                set_global_threads("dem_proc", threads)?;
                 let mut w = collapse_world(&scene)?;
                 let started = Instant::now();
                 for _ in 0..steps {
@@ -160,31 +148,17 @@ fn main() -> ExitCode {
             })();
             result.err().unwrap_or(ExitCode::SUCCESS)
         }
-        Command::Run(RunArgs { scene, out, set, threads, no_record, progress_json, supervised }) => {
-            let stop = match stop_flag() {
-                Ok(s) => s,
-                Err(e) => {
-                    tell!("dem_proc: cannot install signal handler: {e}");
-                    return ExitCode::FAILURE;
-                }
-            };
-            if supervised {
-                die_with_parent();
-            }
-            let scene = match load_scene(&scene, &set) {
-                Ok(s) => s,
+        Command::Run(args) => {
+            let (stop, scene) = match start_run("dem_proc", &args, no_particles) {
+                Ok(started) => started,
                 Err(code) => return code,
             };
-            if let Err(code) = set_threads(threads) {
-                return code;
-            }
+            let progress_json = args.progress_json;
             let mut reporter = Reporter { json: progress_json, started: Instant::now() };
-            let opts = RunOptions { out_dir: out.unwrap_or_else(|| PathBuf::from("runs/dem")), record: !no_record };
+            let out_dir = args.out.unwrap_or_else(|| PathBuf::from("runs/dem"));
+            let opts = RunOptions { out_dir, record: !args.no_record };
             match run(&scene, &opts, &stop, &mut reporter) {
                 Ok(summary) => {
-                    if progress_json {
-                        say!("{{\"event\":\"done\",\"status\":\"{}\"}}", summary.status);
-                    }
                     tell!(
                         "dem_proc: {} at t = {:.4} s after {} steps in {:.1} s ({:.3e} particle-steps/s); runout {:.4}",
                         summary.status,
@@ -194,11 +168,7 @@ fn main() -> ExitCode {
                         summary.throughput.particle_steps_per_s.unwrap_or(0.0),
                         summary.runout
                     );
-                    if summary.status == "interrupted" {
-                        ExitCode::from(EXIT_INTERRUPTED as u8)
-                    } else {
-                        ExitCode::SUCCESS
-                    }
+                    finish_run(progress_json, &summary.status)
                 }
                 Err(RunError::Packing(dem_proc::packing::PackingError::Interrupted)) => {
                     tell!("dem_proc: interrupted during deposition; nothing recorded");

@@ -6,16 +6,16 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use foxglove::schemas::{
-    packed_element_field::NumericType, Color, Log, PackedElementField, PointCloud, Pose, Quaternion, SceneEntity,
-    SceneUpdate, SpherePrimitive, Vector3,
-};
+use foxglove::schemas::{Color, Log, PointCloud, Pose, SceneEntity, SceneUpdate, SpherePrimitive, Vector3};
 use serde::{Deserialize, Serialize};
 
 use schemas::measures::{coordination_shares, deposit_profile, front_position, FrontSample};
 use schemas::metrics::DemMetrics;
 use schemas::process::RunOptions;
-use schemas::record::{metadata, timestamp, topics, ChannelId, RecordError, Recorder, RecorderBuilder};
+use schemas::record::{
+    f32_field, identity_pose, identity_quaternion, log_entry, log_level, metadata, timestamp, topics, ChannelId,
+    RecordError, Recorder, RecorderBuilder,
+};
 use schemas::scene::Scene;
 use schemas::summary::{DemDetails, RunSummary, Throughput};
 
@@ -136,15 +136,7 @@ struct Frames {
 impl Frames {
     fn log(&mut self, t: f64, level: i32, message: &str) -> Result<(), RecordError> {
         if let (Some(r), Some(c)) = (self.recorder.as_mut(), self.channels.as_ref()) {
-            let msg = Log {
-                timestamp: Some(timestamp(t)),
-                level,
-                message: message.into(),
-                name: "dem_proc".into(),
-                file: String::new(),
-                line: 0,
-            };
-            r.log(c.log, t, &msg)?;
+            r.log(c.log, t, &log_entry(t, level, "dem_proc", message))?;
         }
         Ok(())
     }
@@ -152,9 +144,6 @@ impl Frames {
 
 /// Consecutive recorded frames at rest that end a run early.
 pub const REST_FRAMES: u32 = 3;
-
-const LOG_INFO: i32 = 2;
-const LOG_WARN: i32 = 3;
 
 /// Where `dem_proc` writes its recording and its summary.
 pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
@@ -261,11 +250,11 @@ pub fn run(
     let mut frames_at_rest = 0;
     let mut has_moved = false;
     for line in &early_log {
-        frames.log(0.0, LOG_INFO, line)?;
+        frames.log(0.0, log_level::INFO, line)?;
     }
     frames.log(
         0.0,
-        LOG_INFO,
+        log_level::INFO,
         &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk),
     )?;
     record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
@@ -275,7 +264,7 @@ pub fn run(
         let s = world.step_count;
         if stop.load(Ordering::Relaxed) {
             status = "interrupted";
-            frames.log(world.time, LOG_WARN, "interrupted by signal; recording the last state")?;
+            frames.log(world.time, log_level::WARNING, "interrupted by signal; recording the last state")?;
             break;
         }
         if s.is_multiple_of(steps_per_frame) {
@@ -367,7 +356,7 @@ pub fn run(
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
     frames.log(
         world.time,
-        LOG_INFO,
+        log_level::INFO,
         &format!("run {status}: t = {:.4} s, runout {:.4}", world.time, summary.runout),
     )?;
     if let Some(mut rec) = frames.recorder.take() {
@@ -464,23 +453,18 @@ fn record_frame(
                 data.extend_from_slice(&(x as f32).to_le_bytes());
             }
         }
-        let field = |name: &str, offset: u32| PackedElementField {
-            name: name.into(),
-            offset,
-            r#type: NumericType::Float32 as i32,
-        };
         let cloud = PointCloud {
             timestamp: Some(timestamp(t)),
             frame_id: "world".into(),
             pose: Some(identity_pose()),
             point_stride: STRIDE as u32,
             fields: vec![
-                field("x", 0),
-                field("y", 4),
-                field("z", 8),
-                field("radius", 12),
-                field("speed", 16),
-                field("coordination", 20),
+                f32_field("x", 0),
+                f32_field("y", 4),
+                f32_field("z", 8),
+                f32_field("radius", 12),
+                f32_field("speed", 16),
+                f32_field("coordination", 20),
             ],
             data: data.into(),
         };
@@ -492,7 +476,7 @@ fn record_frame(
                     SpherePrimitive {
                         pose: Some(Pose {
                             position: Some(Vector3 { x: g.pos[p][0], y: g.pos[p][1], z: g.pos[p][2] }),
-                            orientation: Some(identity_quat()),
+                            orientation: Some(identity_quaternion()),
                         }),
                         size: Some(Vector3 { x: d, y: d, z: d }),
                         color: Some(Color { r: 0.76, g: 0.6, b: 0.42, a: 1.0 }),
@@ -539,12 +523,4 @@ fn record_frame(
     }
     frames.seconds += started.elapsed().as_secs_f64();
     Ok(max_speed)
-}
-
-fn identity_quat() -> Quaternion {
-    Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 }
-}
-
-fn identity_pose() -> Pose {
-    Pose { position: Some(Vector3 { x: 0.0, y: 0.0, z: 0.0 }), orientation: Some(identity_quat()) }
 }

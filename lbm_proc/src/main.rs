@@ -10,8 +10,8 @@ use lbm_proc::bench::{bulk_mlups, bytes_per_update, triad_bandwidth};
 use lbm_proc::fluid::{Collision, FluidParams};
 use lbm_proc::run::{initial_fluid, run, Progress};
 use lbm_proc::setup::LbmSetup;
-use schemas::process::{die_with_parent, progress_line, stop_flag, RunArgs, RunOptions};
-use schemas::{say, tell, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
+use schemas::process::{finish_run, progress_line, start_run, RunArgs, RunOptions};
+use schemas::{say, tell, Scene};
 
 #[derive(Parser)]
 #[command(name = "lbm_proc", version, about = "D3Q19 free-surface lattice Boltzmann solver process")]
@@ -61,15 +61,15 @@ impl Progress for Reporter {
 }
 
 fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
-    let scene = Scene::load(path, set).map_err(|e| {
-        tell!("lbm_proc: invalid scene {}:\n{e}", path.display());
-        ExitCode::from(EXIT_BAD_SCENE as u8)
-    })?;
-    if scene.spec.fluids.is_empty() {
-        tell!("lbm_proc: the scene has no [[fluids]] blocks; nothing for the LBM to do (grain-only scenes run in dem_proc)");
-        return Err(ExitCode::from(EXIT_BAD_SCENE as u8));
-    }
-    Ok(scene)
+    schemas::process::load_scene("lbm_proc", path, set, no_fluids)
+}
+
+fn no_fluids(scene: &Scene) -> Option<&'static str> {
+    scene
+        .spec
+        .fluids
+        .is_empty()
+        .then_some("the scene has no [[fluids]] blocks; nothing for the LBM to do (grain-only scenes run in dem_proc)")
 }
 
 fn pool(threads: usize) -> Result<rayon::ThreadPool, ExitCode> {
@@ -131,34 +131,17 @@ fn main() -> ExitCode {
         Command::Bench { bulk, scene, set, steps } => {
             bench(&bulk, scene.as_ref(), &set, steps).err().unwrap_or(ExitCode::SUCCESS)
         }
-        Command::Run(RunArgs { scene, out, set, threads, no_record, progress_json, supervised }) => {
-            let stop = match stop_flag() {
-                Ok(s) => s,
-                Err(e) => {
-                    tell!("lbm_proc: cannot install signal handler: {e}");
-                    return ExitCode::FAILURE;
-                }
-            };
-            if supervised {
-                die_with_parent();
-            }
-            let scene = match load_scene(&scene, &set) {
-                Ok(s) => s,
+        Command::Run(args) => {
+            let (stop, scene) = match start_run("lbm_proc", &args, no_fluids) {
+                Ok(started) => started,
                 Err(code) => return code,
             };
-            if let Some(n) = threads {
-                if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global() {
-                    tell!("lbm_proc: cannot set {n} threads: {e}");
-                    return ExitCode::FAILURE;
-                }
-            }
+            let progress_json = args.progress_json;
             let mut reporter = Reporter { json: progress_json, started: Instant::now() };
-            let opts = RunOptions { out_dir: out.unwrap_or_else(|| PathBuf::from("runs/lbm")), record: !no_record };
+            let out_dir = args.out.unwrap_or_else(|| PathBuf::from("runs/lbm"));
+            let opts = RunOptions { out_dir, record: !args.no_record };
             match run(&scene, &opts, &stop, &mut reporter) {
                 Ok(summary) => {
-                    if progress_json {
-                        say!("{{\"event\":\"done\",\"status\":\"{}\"}}", summary.status);
-                    }
                     let front = summary.liquid_front.last().map(|f| f.x_norm).unwrap_or(f64::NAN);
                     tell!(
                         "lbm_proc: {} at t = {:.4} s after {} steps in {:.1} s ({:.1} MLUPS); liquid front {front:.4}",
@@ -168,11 +151,7 @@ fn main() -> ExitCode {
                         summary.wall_seconds,
                         summary.throughput.cell_updates_per_s.unwrap_or(0.0) / 1e6,
                     );
-                    if summary.status == "interrupted" {
-                        ExitCode::from(EXIT_INTERRUPTED as u8)
-                    } else {
-                        ExitCode::SUCCESS
-                    }
+                    finish_run(progress_json, &summary.status)
                 }
                 Err(e) => {
                     tell!("lbm_proc: error: {e}");

@@ -6,15 +6,16 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use foxglove::schemas::{
-    packed_element_field::NumericType, Grid, Log, PackedElementField, PointCloud, Pose, Quaternion, Vector2, Vector3,
-};
+use foxglove::schemas::{Grid, Log, PointCloud, Pose, Quaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use schemas::measures::{front_position, FrontSample};
 use schemas::metrics::LbmMetrics;
 use schemas::process::RunOptions;
-use schemas::record::{metadata, timestamp, topics, ChannelId, RecordError, Recorder, RecorderBuilder};
+use schemas::record::{
+    f32_field, identity_pose, log_entry, log_level, metadata, timestamp, topics, ChannelId, RecordError, Recorder,
+    RecorderBuilder,
+};
 use schemas::scene::Scene;
 use schemas::summary::{LbmDetails, RunSummary, Throughput};
 
@@ -91,22 +92,10 @@ struct Frames {
     max_mach: f64,
 }
 
-const LOG_INFO: i32 = 2;
-const LOG_WARN: i32 = 3;
-const LOG_ERROR: i32 = 4;
-
 impl Frames {
     fn log(&mut self, t: f64, level: i32, message: &str) -> Result<(), RecordError> {
         if let (Some(r), Some(c)) = (self.recorder.as_mut(), self.channels.as_ref()) {
-            let msg = Log {
-                timestamp: Some(timestamp(t)),
-                level,
-                message: message.into(),
-                name: "lbm_proc".into(),
-                file: String::new(),
-                line: 0,
-            };
-            r.log(c.log, t, &msg)?;
+            r.log(c.log, t, &log_entry(t, level, "lbm_proc", message))?;
         }
         Ok(())
     }
@@ -169,7 +158,7 @@ pub fn run(
         frames.channels = Some(channels);
     }
     for note in &setup.notes {
-        frames.log(0.0, LOG_INFO, note)?;
+        frames.log(0.0, log_level::INFO, note)?;
     }
 
     let dt = setup.units.dt();
@@ -198,7 +187,7 @@ pub fn run(
         release_gates(&mut fluid, &setup, &mut gates_removed, time, &mut frames)?;
         if stop.load(Ordering::Relaxed) {
             status = "interrupted";
-            frames.log(time, LOG_WARN, "interrupted by signal; recording the last state")?;
+            frames.log(time, log_level::WARNING, "interrupted by signal; recording the last state")?;
             break;
         }
         if steps.is_multiple_of(steps_per_frame) {
@@ -207,7 +196,7 @@ pub fn run(
             last_frame = (Instant::now(), cell_updates);
             if let Err(instability) = fluid.check(&setup.limits) {
                 status = "unstable";
-                frames.log(time, LOG_ERROR, &instability.to_string())?;
+                frames.log(time, log_level::ERROR, &instability.to_string())?;
                 failure = Some(RunError::Unstable { t: time, instability: Box::new(instability) });
                 break;
             }
@@ -278,7 +267,7 @@ pub fn run(
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
     frames.log(
         time,
-        LOG_INFO,
+        log_level::INFO,
         &format!(
             "run {status}: t = {time:.4} s, {steps} steps, mass change {:.3e}",
             (mass_final - mass_initial) / mass_initial
@@ -308,7 +297,7 @@ fn release_gates(
         if !removed[g] && time >= gate.release_time {
             fluid.remove_walls(&gate.cells).map_err(|e| RunError::Lattice(e.to_string()))?;
             removed[g] = true;
-            frames.log(time, LOG_INFO, &format!("gate {} removed ({} cells)", gate.name, gate.cells.len()))?;
+            frames.log(time, log_level::INFO, &format!("gate {} removed ({} cells)", gate.name, gate.cells.len()))?;
         }
     }
     Ok(())
@@ -325,10 +314,6 @@ fn record_state(frames: &mut Frames, fluid: &Fluid<f32>, time: f64, gates_remove
         rec.log_bytes(ch.state, time, state.encode())?;
     }
     Ok(())
-}
-
-fn field(name: &str, offset: u32) -> PackedElementField {
-    PackedElementField { name: name.into(), offset, r#type: NumericType::Float32 as i32 }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -382,9 +367,15 @@ fn record_frame(
         let cloud = PointCloud {
             timestamp: Some(timestamp(t)),
             frame_id: "world".into(),
-            pose: Some(Pose { position: Some(Vector3 { x: 0.0, y: 0.0, z: 0.0 }), orientation: Some(identity()) }),
+            pose: Some(identity_pose()),
             point_stride: STRIDE as u32,
-            fields: vec![field("x", 0), field("y", 4), field("z", 8), field("speed", 12), field("fill", 16)],
+            fields: vec![
+                f32_field("x", 0),
+                f32_field("y", 4),
+                f32_field("z", 8),
+                f32_field("speed", 12),
+                f32_field("fill", 16),
+            ],
             data: data.into(),
         };
         rec.log(ch.surface, t, &cloud)?;
@@ -417,7 +408,7 @@ fn record_frame(
             cell_size: Some(Vector2 { x: dx, y: dx }),
             row_stride: (nx * 8) as u32,
             cell_stride: 8,
-            fields: vec![field("fill", 0), field("speed", 4)],
+            fields: vec![f32_field("fill", 0), f32_field("speed", 4)],
             data: grid.into(),
         };
         rec.log(ch.slice, t, &slice)?;
@@ -443,8 +434,4 @@ fn record_frame(
     }
     frames.seconds += started.elapsed().as_secs_f64();
     Ok(())
-}
-
-fn identity() -> Quaternion {
-    Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 }
 }

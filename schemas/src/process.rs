@@ -87,3 +87,66 @@ pub struct RunOptions {
     /// Record to MCAP (off only for benchmarks measuring the recording cost).
     pub record: bool,
 }
+
+/// Loads and checks the scene a solver was given; `unfit` names why this
+/// solver has nothing to do with it. Exit status 2 with the reason otherwise.
+pub fn load_scene(
+    solver: &str,
+    path: &std::path::Path,
+    set: &[String],
+    unfit: impl Fn(&crate::Scene) -> Option<&'static str>,
+) -> Result<crate::Scene, std::process::ExitCode> {
+    let bad = || std::process::ExitCode::from(crate::EXIT_BAD_SCENE as u8);
+    let scene = crate::Scene::load(path, set).map_err(|e| {
+        tell!("{solver}: invalid scene {}:\n{e}", path.display());
+        bad()
+    })?;
+    if let Some(why) = unfit(&scene) {
+        tell!("{solver}: {why}");
+        return Err(bad());
+    }
+    Ok(scene)
+}
+
+/// The start of every solver's `run`: the stop flag first (so no signal is
+/// lost), parent death when supervised, the scene, the worker threads.
+pub fn start_run(
+    solver: &str,
+    args: &RunArgs,
+    unfit: impl Fn(&crate::Scene) -> Option<&'static str>,
+) -> Result<(Arc<AtomicBool>, crate::Scene), std::process::ExitCode> {
+    let stop = stop_flag().map_err(|e| {
+        tell!("{solver}: cannot install signal handler: {e}");
+        std::process::ExitCode::FAILURE
+    })?;
+    if args.supervised {
+        die_with_parent();
+    }
+    let scene = load_scene(solver, &args.scene, &args.set, unfit)?;
+    set_global_threads(solver, args.threads)?;
+    Ok((stop, scene))
+}
+
+/// Sizes rayon's global pool (default: all cores).
+pub fn set_global_threads(solver: &str, threads: Option<usize>) -> Result<(), std::process::ExitCode> {
+    if let Some(n) = threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().map_err(|e| {
+            tell!("{solver}: cannot set {n} threads: {e}");
+            std::process::ExitCode::FAILURE
+        })?;
+    }
+    Ok(())
+}
+
+/// The end of a run that wrote its summary: the `done` progress event and
+/// the exit status (130 after an interruption).
+pub fn finish_run(progress_json: bool, status: &str) -> std::process::ExitCode {
+    if progress_json {
+        say!("{{\"event\":\"done\",\"status\":\"{status}\"}}");
+    }
+    if status == "interrupted" {
+        std::process::ExitCode::from(crate::EXIT_INTERRUPTED as u8)
+    } else {
+        std::process::ExitCode::SUCCESS
+    }
+}

@@ -225,3 +225,41 @@ pub fn timestamp(t: f64) -> foxglove::schemas::Timestamp {
     let ns = sim_time_ns(t);
     foxglove::schemas::Timestamp::new((ns / 1_000_000_000) as u32, (ns % 1_000_000_000) as u32)
 }
+
+/// `foxglove.Log` levels used by the solvers.
+pub mod log_level {
+    pub const INFO: i32 = 2;
+    pub const WARNING: i32 = 3;
+    pub const ERROR: i32 = 4;
+}
+
+/// A `/log` message from process `name` at simulated time `t`.
+pub fn log_entry(t: f64, level: i32, name: &str, message: &str) -> foxglove::schemas::Log {
+    foxglove::schemas::Log {
+        timestamp: Some(timestamp(t)),
+        level,
+        message: message.into(),
+        name: name.into(),
+        file: String::new(),
+        line: 0,
+    }
+}
+
+/// A little-endian float32 field of a point cloud or grid at byte `offset`.
+pub fn f32_field(name: &str, offset: u32) -> foxglove::schemas::PackedElementField {
+    use foxglove::schemas::packed_element_field::NumericType;
+    foxglove::schemas::PackedElementField { name: name.into(), offset, r#type: NumericType::Float32 as i32 }
+}
+
+/// No rotation.
+pub fn identity_quaternion() -> foxglove::schemas::Quaternion {
+    foxglove::schemas::Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 }
+}
+
+/// The `world` frame's own pose.
+pub fn identity_pose() -> foxglove::schemas::Pose {
+    foxglove::schemas::Pose {
+        position: Some(foxglove::schemas::Vector3 { x: 0.0, y: 0.0, z: 0.0 }),
+        orientation: Some(identity_quaternion()),
+    }
+}

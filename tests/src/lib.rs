@@ -82,3 +82,21 @@ pub fn process_running(name: &str, arg: &Path) -> bool {
         cmd.contains(name) && cmd.contains(&needle)
     })
 }
+
+/// Runs `coupler run SCENE --quiet --out <scratch>/<name> EXTRA…` from the
+/// workspace root (packing cache inside the scratch directory) and returns
+/// the output directory; panics if the run fails.
+pub fn coupler_run(name: &str, scene: &str, extra: &[&str]) -> PathBuf {
+    let out = scratch_dir(name);
+    let status = Command::new(binary("coupler"))
+        .current_dir(repo_root())
+        .env("SGF_CACHE_DIR", out.join("cache"))
+        .args(["run", scene, "--quiet"])
+        .args(extra)
+        .arg("--out")
+        .arg(&out)
+        .status()
+        .expect("coupler starts");
+    assert!(status.success(), "coupler run {scene} failed: {status}");
+    out
+}

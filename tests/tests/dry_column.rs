@@ -8,23 +8,12 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use foxglove::Decode;
-use integration_tests::{binary, repo_root, scratch_dir};
+use integration_tests::{binary, coupler_run, repo_root, scratch_dir};
 
 /// Runs the small dry column once for all tests of this file.
 fn small_run() -> &'static PathBuf {
     static RUN: OnceLock<PathBuf> = OnceLock::new();
-    RUN.get_or_init(|| {
-        let out = scratch_dir("dry_small");
-        let status = Command::new(binary("coupler"))
-            .current_dir(repo_root())
-            .env("SGF_CACHE_DIR", out.join("cache"))
-            .args(["run", "scenes/validation/dry_small.toml", "--quiet", "--out"])
-            .arg(&out)
-            .status()
-            .expect("coupler starts");
-        assert!(status.success(), "coupler run failed: {status}");
-        out
-    })
+    RUN.get_or_init(|| coupler_run("dry_small", "scenes/validation/dry_small.toml", &[]))
 }
 
 fn summary() -> serde_json::Value {

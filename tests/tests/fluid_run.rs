@@ -2,25 +2,16 @@
 //! block (fluid only, lbm_proc), the summary, and the recording read back.
 
 use std::path::PathBuf;
-use std::process::Command;
 use std::sync::OnceLock;
 
 use foxglove::Decode;
-use integration_tests::{binary, repo_root, scratch_dir};
+use integration_tests::coupler_run;
 
 /// 0.1 s of the coarse water block (1000 steps of 100 x 25 x 40 cells).
 fn water_run() -> &'static PathBuf {
     static RUN: OnceLock<PathBuf> = OnceLock::new();
     RUN.get_or_init(|| {
-        let out = scratch_dir("water_block");
-        let status = Command::new(binary("coupler"))
-            .current_dir(repo_root())
-            .args(["run", "scenes/validation/water_block.toml", "--quiet", "--set", "output.end_time=0.1", "--out"])
-            .arg(&out)
-            .status()
-            .expect("coupler starts");
-        assert!(status.success(), "coupler run failed: {status}");
-        out
+        coupler_run("water_block", "scenes/validation/water_block.toml", &["--set", "output.end_time=0.1"])
     })
 }
 
