@@ -13,8 +13,8 @@ use schemas::measures::{coordination_shares, deposit_profile, front_position, Fr
 use schemas::metrics::DemMetrics;
 use schemas::process::RunOptions;
 use schemas::record::{
-    f32_field, identity_pose, identity_quaternion, log_entry, log_level, metadata, timestamp, topics, ChannelId,
-    RecordError, Recorder, RecorderBuilder,
+    f32_field, identity_pose, identity_quaternion, log_entry, log_level, timestamp, topics, ChannelId, RecordError,
+    Recorder, RecorderBuilder,
 };
 use schemas::scene::Scene;
 use schemas::summary::{DemDetails, RunSummary, Throughput};
@@ -225,9 +225,7 @@ pub fn run(
             log: b.channel::<Log>(topics::LOG)?,
         };
         let mut rec = b.start(64);
-        let mut meta = BTreeMap::new();
-        meta.insert("toml".into(), scene.to_toml());
-        rec.metadata(metadata::SCENE, meta)?;
+        rec.scene(scene.to_toml())?;
         frames.recorder = Some(rec);
         frames.channels = Some(channels);
     }
@@ -359,11 +357,8 @@ pub fn run(
         log_level::INFO,
         &format!("run {status}: t = {:.4} s, runout {:.4}", world.time, summary.runout),
     )?;
-    if let Some(mut rec) = frames.recorder.take() {
-        let mut meta = BTreeMap::new();
-        meta.insert("json".into(), json.clone());
-        rec.metadata(metadata::SUMMARY, meta)?;
-        rec.finish()?;
+    if let Some(rec) = frames.recorder.take() {
+        rec.finish_with_summary(json.clone())?;
     }
     std::fs::write(&summary_path, json).map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
     Ok(summary)

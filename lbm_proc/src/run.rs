@@ -13,7 +13,7 @@ use schemas::measures::{front_position, FrontSample};
 use schemas::metrics::LbmMetrics;
 use schemas::process::RunOptions;
 use schemas::record::{
-    f32_field, identity_pose, log_entry, log_level, metadata, timestamp, topics, ChannelId, RecordError, Recorder,
+    f32_field, identity_pose, log_entry, log_level, timestamp, topics, ChannelId, RecordError, Recorder,
     RecorderBuilder,
 };
 use schemas::scene::Scene;
@@ -151,9 +151,7 @@ pub fn run(
             log: b.channel::<Log>(topics::LOG)?,
         };
         let mut rec = b.start(16);
-        let mut meta = BTreeMap::new();
-        meta.insert("toml".into(), scene.to_toml());
-        rec.metadata(metadata::SCENE, meta)?;
+        rec.scene(scene.to_toml())?;
         frames.recorder = Some(rec);
         frames.channels = Some(channels);
     }
@@ -273,11 +271,8 @@ pub fn run(
             (mass_final - mass_initial) / mass_initial
         ),
     )?;
-    if let Some(mut rec) = frames.recorder.take() {
-        let mut meta = BTreeMap::new();
-        meta.insert("json".into(), json.clone());
-        rec.metadata(metadata::SUMMARY, meta)?;
-        rec.finish()?;
+    if let Some(rec) = frames.recorder.take() {
+        rec.finish_with_summary(json.clone())?;
     }
     std::fs::write(&summary_path, json).map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
     match failure {

@@ -204,6 +204,17 @@ impl Recorder {
         self.send(Command::Metadata { name: name.into(), entries })
     }
 
+    /// Records the scene as run (metadata `scene`, key `toml`).
+    pub fn scene(&mut self, toml: String) -> Result<(), RecordError> {
+        self.metadata(metadata::SCENE, BTreeMap::from([("toml".to_string(), toml)]))
+    }
+
+    /// Records the run summary (metadata `summary`, key `json`) and closes the file.
+    pub fn finish_with_summary(mut self, json: String) -> Result<u64, RecordError> {
+        self.metadata(metadata::SUMMARY, BTreeMap::from([("json".to_string(), json)]))?;
+        self.finish()
+    }
+
     /// Writes the summary section and closes the file; returns the message bytes written.
     pub fn finish(mut self) -> Result<u64, RecordError> {
         self.tx = None;
