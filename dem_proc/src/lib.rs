@@ -7,6 +7,7 @@
 //! * [`packing`]: gravity deposition with a disk cache;
 //! * [`run`]: a whole run with recording and summary.
 
+pub mod hydro;
 pub mod lammps;
 pub mod law;
 pub mod neighbours;

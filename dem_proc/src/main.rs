@@ -157,7 +157,7 @@ fn main() -> ExitCode {
             let mut reporter = Reporter { json: progress_json, started: Instant::now() };
             let out_dir = args.out.unwrap_or_else(|| PathBuf::from("runs/dem"));
             let opts = RunOptions { out_dir, record: !args.no_record };
-            match run(&scene, &opts, &stop, &mut reporter) {
+            match run(&scene, &opts, &stop, &mut reporter, None) {
                 Ok(summary) => {
                     tell!(
                         "dem_proc: {} at t = {:.4} s after {} steps in {:.1} s ({:.3e} particle-steps/s); runout {:.4}",

@@ -9,6 +9,7 @@ use std::time::Instant;
 use foxglove::schemas::{Color, Log, PointCloud, Pose, SceneEntity, SceneUpdate, SpherePrimitive, Vector3};
 use serde::{Deserialize, Serialize};
 
+use schemas::exchange::LoadPeer;
 use schemas::measures::{coordination_shares, deposit_profile, front_position, FrontSample};
 use schemas::metrics::DemMetrics;
 use schemas::process::RunOptions;
@@ -17,8 +18,9 @@ use schemas::record::{
     Recorder, RecorderBuilder,
 };
 use schemas::scene::Scene;
-use schemas::summary::{DemDetails, RunSummary, Throughput};
+use schemas::summary::{DemDetails, ExchangeDetails, RunSummary, Throughput};
 
+use crate::hydro::{Flow, HydroExchange};
 use crate::packing::{self, Packing, PackingError};
 use crate::setup::{walls, DemSetup};
 use crate::world::{Grains, Histories, World};
@@ -109,6 +111,8 @@ pub enum RunError {
     BlowUp { t: f64, grain: usize, speed: f64, dt: f64, steps_per_contact: f64 },
     #[error("cannot write {path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
+    #[error("exchange with lbm_proc failed at t = {t:.5} s: {source}")]
+    Peer { t: f64, source: schemas::exchange::PeerError },
 }
 
 /// How the run reports progress to whoever launched it.
@@ -152,11 +156,16 @@ pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
 
 /// Runs the scene. `stop` is polled every step; when set the run ends at the
 /// step boundary with status `interrupted` and a complete recording.
+///
+/// With a `peer` (a coupled scene), every `coupling.ratio`-th step exchanges
+/// grain states for hydrodynamic loads ([`HydroExchange`]); at the end the
+/// peer gets the stop flag.
 pub fn run(
     scene: &Scene,
     opts: &RunOptions,
     stop: &AtomicBool,
     progress: &mut dyn Progress,
+    mut peer: Option<&mut dyn LoadPeer>,
 ) -> Result<RunSummary, RunError> {
     let setup = DemSetup::from_scene(scene);
     let t_ref = scene.reference_time();
@@ -257,7 +266,27 @@ pub fn run(
     )?;
     record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
 
+    let mut hydro = peer.is_some().then(|| HydroExchange::from_scene(scene, dt));
+    let mut failure = None;
     while world.step_count < total_steps {
+        if let (Some(h), Some(p)) = (hydro.as_mut(), peer.as_deref_mut()) {
+            if h.due(&world) {
+                match h.exchange(&mut world, p) {
+                    Ok(Flow::Continue) => {}
+                    Ok(Flow::PeerStopped) => {
+                        status = "peer_stopped";
+                        frames.log(world.time, log_level::WARNING, "lbm_proc stopped; recording the last state")?;
+                        break;
+                    }
+                    Err(source) => {
+                        status = "peer_failed";
+                        frames.log(world.time, log_level::ERROR, &format!("exchange: {source}"))?;
+                        failure = Some(RunError::Peer { t: world.time, source });
+                        break;
+                    }
+                }
+            }
+        }
         world.step();
         let s = world.step_count;
         if stop.load(Ordering::Relaxed) {
@@ -294,6 +323,13 @@ pub fn run(
             last_progress = Instant::now();
         }
     }
+    if let (Some(h), Some(p), None) = (hydro.as_mut(), peer, failure.as_ref()) {
+        if status != "peer_stopped" {
+            if let Err(source) = h.finish(&world, p) {
+                frames.log(world.time, log_level::WARNING, &format!("could not tell lbm_proc to stop: {source}"))?;
+            }
+        }
+    }
     let wall = started.elapsed().as_secs_f64();
     progress.collapse(world.time, out.end_time, world.step_count);
     // The run always ends with a recorded frame and a full state.
@@ -314,7 +350,7 @@ pub fn run(
     let particle_steps = world.step_count as f64 * world.len() as f64;
     let summary = RunSummary {
         scene: scene.spec.scene.name.clone(),
-        method: "dem".into(),
+        method: if hydro.is_some() { "dem_lbm" } else { "dem" }.into(),
         status: status.into(),
         sim_time: world.time,
         wall_seconds: wall,
@@ -350,6 +386,14 @@ pub fn run(
         liquid_front: Vec::new(),
         lbm: None,
         wall_seconds_total: None,
+        exchange: hydro.as_ref().map(|h| ExchangeDetails {
+            schedule: h.schedule.name().into(),
+            ratio: h.ratio as u32,
+            exchanges: h.exchanges,
+            seconds: h.exchange_seconds,
+            fraction: h.exchange_seconds / wall.max(1e-9),
+            kernel_seconds: 0.0,
+        }),
     };
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
     frames.log(
@@ -361,7 +405,10 @@ pub fn run(
         rec.finish_with_summary(json.clone())?;
     }
     std::fs::write(&summary_path, json).map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
-    Ok(summary)
+    match failure {
+        Some(e) => Err(e),
+        None => Ok(summary),
+    }
 }
 
 /// Fraction of the grain mass faster than `speed`.

@@ -2,6 +2,7 @@
 
 use schemas::contact::{contact_duration, effective_mass};
 use schemas::scene::{Face, Scene};
+use schemas::Method;
 
 use crate::law::{damping_ratio_for, ContactLaw};
 use crate::world::{Numerics, Wall};
@@ -63,7 +64,11 @@ impl DemSetup {
         };
         let m = lightest_grain(scene);
         let tc = contact_duration(kn, effective_mass(m, m), zeta);
-        let dt = dem.time_step.unwrap_or(tc / dem.steps_per_contact);
+        // A coupled run steps the DEM `ratio` times per LBM step (checked at load).
+        let dt = match scene.method() {
+            Method::DemLbm => scene.lbm().time_step / scene.spec.coupling.ratio as f64,
+            _ => dem.time_step.unwrap_or(tc / dem.steps_per_contact),
+        };
         let max_diameter = largest_diameter(scene);
         DemSetup {
             grain_law,
@@ -81,6 +86,9 @@ impl DemSetup {
     pub fn for_deposition(&self, scene: &Scene) -> Self {
         let dep = &scene.spec.deposition;
         let mut s = self.clone();
+        // Deposition is dry even in a coupled scene: its step needs no LBM alignment.
+        let dem = scene.dem();
+        s.numerics.dt = dem.time_step.unwrap_or(s.contact_duration / dem.steps_per_contact);
         for law in [&mut s.grain_law, &mut s.wall_law] {
             law.friction = dep.friction;
             law.rolling_friction = dep.rolling_friction;

@@ -887,7 +887,19 @@ impl<T: Real> Kernel<'_, T> {
         for a in 0..3 {
             accel[a][l] = T::from_f64(self.accel[a] + force[a] / rho);
         }
-        AppliedForce { cell: cell.cell, force, liquid: w * rho }
+        // What the cell held after last step's collision (the shift w_i carries no momentum).
+        let mut j_left = [0.0; 3];
+        for i in 0..Q {
+            let g = self.src[i * self.ncells + cell.cell].to_f64();
+            for a in 0..3 {
+                j_left[a] += E[i][a] as f64 * g;
+            }
+        }
+        // The covered part's momentum balance, w·Δq = w·(inflow + F_IB + ρa),
+        // leaves (1 − w)·F_IB to the uncovered part: the grain's share of the
+        // forcing reaction is the rest (coupling.rs, step 6).
+        let inflow = std::array::from_fn(|a| w * (j[a] - j_left[a]) - (1.0 - w) * force[a]);
+        AppliedForce { cell: cell.cell, force, liquid: w * rho, inflow }
     }
 
     /// The free-surface part of the pull for interface cell (x, y, z), lane

@@ -18,6 +18,7 @@
 pub mod bench;
 pub mod coupling;
 pub mod fluid;
+pub mod grains;
 pub mod lattice;
 pub mod real;
 pub mod run;

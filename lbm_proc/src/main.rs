@@ -140,7 +140,7 @@ fn main() -> ExitCode {
             let mut reporter = Reporter { json: progress_json, started: Instant::now() };
             let out_dir = args.out.unwrap_or_else(|| PathBuf::from("runs/lbm"));
             let opts = RunOptions { out_dir, record: !args.no_record };
-            match run(&scene, &opts, &stop, &mut reporter) {
+            match run(&scene, &opts, &stop, &mut reporter, None) {
                 Ok(summary) => {
                     let front = summary.liquid_front.last().map(|f| f.x_norm).unwrap_or(f64::NAN);
                     tell!(

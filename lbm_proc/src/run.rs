@@ -9,6 +9,7 @@ use std::time::Instant;
 use foxglove::schemas::{Grid, Log, PointCloud, Pose, Quaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
+use schemas::exchange::{ExchangeHeader, StatePeer, FLAG_STOP};
 use schemas::measures::{front_position, FrontSample};
 use schemas::metrics::LbmMetrics;
 use schemas::process::RunOptions;
@@ -17,9 +18,11 @@ use schemas::record::{
     RecorderBuilder,
 };
 use schemas::scene::Scene;
-use schemas::summary::{LbmDetails, RunSummary, Throughput};
+use schemas::summary::{ExchangeDetails, LbmDetails, RunSummary, Throughput};
 
+use crate::coupling::{Coupling, CouplingError};
 use crate::fluid::{flags, Fluid, FluidState};
+use crate::grains::GrainForcing;
 use crate::lattice::CS2;
 use crate::setup::{LbmSetup, SetupError};
 use crate::watchdog::Instability;
@@ -58,6 +61,10 @@ pub enum RunError {
     Unstable { t: f64, instability: Box<Instability> },
     #[error("cannot build the lattice: {0}")]
     Lattice(String),
+    #[error("grain coupling at exchange {exchange}: {source}")]
+    Coupling { exchange: u64, source: CouplingError },
+    #[error("exchange with dem_proc failed at step {exchange}: {source}")]
+    Peer { exchange: u64, source: schemas::exchange::PeerError },
     #[error("cannot write {path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
 }
@@ -116,11 +123,16 @@ pub fn initial_fluid(scene: &Scene, setup: &LbmSetup) -> Result<Fluid<f32>, RunE
 
 /// Runs the scene. `stop` is polled every step; when set the run ends at the
 /// step boundary with status `interrupted` and a complete recording.
+///
+/// With a `peer` (a coupled scene), every step is one exchange: the grain
+/// states of step n come from the peer, are forced in ([`GrainForcing`]),
+/// and the loads go back; the run ends when the peer sends the stop flag.
 pub fn run(
     scene: &Scene,
     opts: &RunOptions,
     stop: &AtomicBool,
     progress: &mut dyn Progress,
+    mut peer: Option<&mut dyn StatePeer>,
 ) -> Result<RunSummary, RunError> {
     let setup = LbmSetup::from_scene(scene)?;
     let t_ref = scene.reference_time();
@@ -175,17 +187,60 @@ pub fn run(
     let mut last_state = None;
     let mut failure = None;
 
+    let mut forcing = match peer {
+        Some(_) => Some(GrainForcing::new(
+            Coupling::new(setup.units, setup.origin)
+                .map_err(|source| RunError::Coupling { exchange: 0, source })?,
+        )),
+        None => None,
+    };
+    let (mut states, mut loads) = (Vec::new(), Vec::new());
+    let mut exchange_seconds = 0.0;
     release_gates(&mut fluid, &setup, &mut gates_removed, time, &mut frames)?;
     record_frame(&mut frames, &fluid, scene, &setup, t_ref, time, mass_initial, 0.0)?;
-    while steps < total_steps {
+    // Coupled, the DEM decides when the run ends; the bound only guards a runaway peer.
+    let step_limit = if peer.is_some() { total_steps + 1 } else { total_steps };
+    while steps < step_limit {
         cell_updates += fluid.active_cells() as f64;
-        fluid.step();
+        if let (Some(p), Some(f)) = (peer.as_deref_mut(), forcing.as_mut()) {
+            let waited = Instant::now();
+            let header = match p.receive_states(steps, &mut states) {
+                Ok(h) => h,
+                Err(source) => {
+                    status = "peer_failed";
+                    frames.log(time, log_level::ERROR, &format!("exchange {steps}: {source}"))?;
+                    failure = Some(RunError::Peer { exchange: steps, source });
+                    break;
+                }
+            };
+            exchange_seconds += waited.elapsed().as_secs_f64();
+            if header.is_stop() {
+                frames.log(time, log_level::INFO, &format!("dem_proc stopped at exchange {steps}"))?;
+                break;
+            }
+            f.step(&mut fluid, &header, &states, &mut loads)
+                .map_err(|source| RunError::Coupling { exchange: steps, source })?;
+            let sent = Instant::now();
+            let answer = ExchangeHeader { exchange: steps, time: header.time, count: loads.len() as u32, flags: 0 };
+            if let Err(source) = p.send_loads(answer, &loads) {
+                status = "peer_failed";
+                failure = Some(RunError::Peer { exchange: steps, source });
+                break;
+            }
+            exchange_seconds += sent.elapsed().as_secs_f64();
+        } else {
+            fluid.step();
+        }
         steps += 1;
         time = steps as f64 * dt;
         release_gates(&mut fluid, &setup, &mut gates_removed, time, &mut frames)?;
         if stop.load(Ordering::Relaxed) {
             status = "interrupted";
             frames.log(time, log_level::WARNING, "interrupted by signal; recording the last state")?;
+            if let Some(p) = peer.as_deref_mut() {
+                // The DEM may be waiting for this step's load: tell it to stop too.
+                let _ = p.send_loads(ExchangeHeader { exchange: steps, time, count: 0, flags: FLAG_STOP }, &[]);
+            }
             break;
         }
         if steps.is_multiple_of(steps_per_frame) {
@@ -224,7 +279,7 @@ pub fn run(
     let mass_si = |m: f64| m * setup.density * setup.units.dx().powi(3);
     let summary = RunSummary {
         scene: scene.spec.scene.name.clone(),
-        method: "lbm".into(),
+        method: if forcing.is_some() { "dem_lbm" } else { "lbm" }.into(),
         status: status.into(),
         sim_time: time,
         wall_seconds: wall,
@@ -261,6 +316,14 @@ pub fn run(
             threads: rayon::current_num_threads(),
         }),
         wall_seconds_total: None,
+        exchange: forcing.as_ref().map(|f| ExchangeDetails {
+            schedule: scene.spec.coupling.schedule.name().into(),
+            ratio: scene.spec.coupling.ratio,
+            exchanges: steps,
+            seconds: exchange_seconds,
+            fraction: exchange_seconds / wall.max(1e-9),
+            kernel_seconds: f.coupling_seconds,
+        }),
     };
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
     frames.log(

@@ -71,6 +71,8 @@ fn drag(d: f64, l: usize, moving: bool, steps: usize, average: usize) -> Drag {
     };
     let mut last_ib = 0.0;
     let mut sum = 0.0;
+    let mut sum_surface = 0.0;
+    let mut sum_buoy = 0.0;
     for step in 0..steps {
         // Deadbeat on the tracked momentum, with this step's F_IB predicted by the last.
         let a = (target - p - last_ib) / mass;
@@ -81,12 +83,20 @@ fn drag(d: f64, l: usize, moving: bool, steps: usize, average: usize) -> Drag {
         if step >= steps - average {
             // The drag opposes the relative motion: −x moving, +x fixed.
             sum += if moving { -f.force[0] } else { f.force[0] };
+            sum_surface += if moving { -f.surface_force[0] } else { f.surface_force[0] };
+            sum_buoy += if moving { -f.buoyancy[0] } else { f.buoyancy[0] };
         }
         sphere.position[0] += sphere.velocity[0];
     }
     let drift = (momentum(&fluid)[0] - p).abs() / mass;
     assert!(drift < 1e-12, "tracked momentum off the lattice's by {drift:e} per cell");
     let force = sum / average as f64;
+    // The surface force (what a free grain is given) carries the buoyancy of
+    // the driving pressure gradient and the interior liquid's inertia; in
+    // steady motion the latter averages out, leaving force + buoyancy.
+    let surface = sum_surface / average as f64;
+    let balance = (surface - (force + sum_buoy / average as f64)) / force;
+    assert!(balance.abs() < 2e-3, "surface force {surface:e} vs force + buoyancy: off by {balance:e} of the drag");
     let mu = nu; // ρ = 1
     let phi = |r: f64| 4.0 * PI * r.powi(3) / 3.0 / (l as f64).powi(3);
     let expected = 3.0 * PI * mu * d * u * hasimoto(phi(0.5 * d));
@@ -294,6 +304,11 @@ fn sphere_at_rest_in_a_tank_gets_the_buoyancy_of_its_wetted_part() {
         // The relaxed tank keeps |u| ~ 1e-9 of its start-up transient.
         assert!(residual < 1e-4 * expected, "a resting grain in resting liquid needs no forcing");
         assert!(f.buoyancy[0] == 0.0 && f.buoyancy[1] == 0.0);
+        // The surface force a free grain is given (momentum flux into its
+        // covered cells) is the same buoyancy, measured instead of modelled.
+        let surface = f.surface_force[2];
+        println!("  surface force {surface:.6e} N ({:+.3} % of the modelled buoyancy)", 100.0 * (surface / up - 1.0));
+        assert!((surface / up - 1.0).abs() < 1e-3, "surface force {surface:e} vs buoyancy {up:e}");
     }
 }
 

@@ -34,6 +34,9 @@ pub struct SceneSpec {
     pub dem: Option<DemSpec>,
     #[serde(default)]
     pub lbm: Option<LbmSpec>,
+    /// DEM–LBM exchange; only read when the scene has both grains and liquid.
+    #[serde(default)]
+    pub coupling: CouplingSpec,
     #[serde(default)]
     pub deposition: DepositionSpec,
     pub output: OutputSpec,
@@ -267,6 +270,52 @@ fn default_steps_per_contact() -> f64 {
 }
 fn default_skin() -> f64 {
     0.15
+}
+
+/// How `dem_proc` and `lbm_proc` exchange particle states and hydrodynamic
+/// loads (DESIGN §2, docs/coupling.md).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CouplingSpec {
+    /// DEM steps per LBM step: the DEM time step is `lbm.time_step / ratio`.
+    /// Default 57 (the paper's 8e-5 s / 1.4e-6 s).
+    #[serde(default = "default_coupling_ratio")]
+    pub ratio: u32,
+    /// `sequential` (LBM step n sees the grains at t_n, then the DEM advances
+    /// `ratio` steps with that load) or `concurrent` (both advance at once,
+    /// the DEM holding the load of the previous exchange). Default `sequential`.
+    #[serde(default)]
+    pub schedule: Schedule,
+}
+
+impl Default for CouplingSpec {
+    fn default() -> Self {
+        Self { ratio: default_coupling_ratio(), schedule: Schedule::default() }
+    }
+}
+
+fn default_coupling_ratio() -> u32 {
+    57
+}
+
+/// Order of the DEM and LBM work within one exchange.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Schedule {
+    /// LBM step n uses the grains at t_n; the DEM then advances with its load.
+    #[default]
+    Sequential,
+    /// DEM and LBM advance at once; the DEM holds the load of exchange n − 1.
+    Concurrent,
+}
+
+impl Schedule {
+    pub fn name(self) -> &'static str {
+        match self {
+            Schedule::Sequential => "sequential",
+            Schedule::Concurrent => "concurrent",
+        }
+    }
 }
 
 /// Gravity deposition that builds the initial packing.
@@ -627,6 +676,26 @@ impl Scene {
                         "lbm.spacing",
                         format!("gives {cells:.3e} lattice cells in the domain (at most 2e9); raise it or shrink the domain"),
                     );
+                }
+            }
+        }
+
+        let c = &spec.coupling;
+        if !(1..=10_000).contains(&c.ratio) {
+            v.fail("coupling.ratio", format!("must be between 1 and 10000 DEM steps per LBM step, got {}", c.ratio));
+        }
+        if let (Some(dem), Some(lbm)) = (&spec.dem, &spec.lbm) {
+            if !spec.particles.is_empty() && !spec.fluids.is_empty() {
+                if let Some(dt) = dem.time_step {
+                    let coupled = lbm.time_step / c.ratio as f64;
+                    if (dt - coupled).abs() > 1e-9 * coupled {
+                        v.fail(
+                            "dem.time_step",
+                            format!(
+                                "a coupled scene takes its DEM step from lbm.time_step / coupling.ratio = {coupled:.6e} s, got {dt:.6e} s; remove dem.time_step or change coupling.ratio"
+                            ),
+                        );
+                    }
                 }
             }
         }

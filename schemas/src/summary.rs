@@ -52,6 +52,27 @@ pub struct RunSummary {
     /// Wall time of the whole run as the coupler saw it, s (set by the coupler).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub wall_seconds_total: Option<f64>,
+    /// The DEM–LBM exchange as this process saw it; absent in uncoupled runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exchange: Option<ExchangeDetails>,
+}
+
+/// One process's view of the DEM–LBM exchange.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct ExchangeDetails {
+    /// `sequential` or `concurrent`.
+    pub schedule: String,
+    /// DEM steps per LBM step.
+    pub ratio: u32,
+    /// Exchanges completed.
+    pub exchanges: u64,
+    /// Wall seconds this process spent sending and waiting for its peer.
+    pub seconds: f64,
+    /// Share of this process's run wall time spent in the exchange.
+    pub fraction: f64,
+    /// Wall seconds in the coupling kernel itself (LBM: covering cells,
+    /// forcing bookkeeping, force sums; DEM: 0).
+    pub kernel_seconds: f64,
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]

@@ -100,3 +100,58 @@ pub fn coupler_run(name: &str, scene: &str, extra: &[&str]) -> PathBuf {
     assert!(status.success(), "coupler run {scene} failed: {status}");
     out
 }
+
+/// Progress sink of the in-process driver: says nothing.
+struct Quiet;
+
+impl dem_proc::run::Progress for Quiet {
+    fn deposition(&mut self, _t: f64, _t_max: f64) {}
+    fn collapse(&mut self, _t: f64, _t_end: f64, _steps: u64) {}
+    fn log(&mut self, _message: &str) {}
+}
+
+impl lbm_proc::run::Progress for Quiet {
+    fn flow(&mut self, _t: f64, _t_end: f64, _steps: u64) {}
+    fn log(&mut self, _message: &str) {}
+}
+
+/// The test-only in-process driver: `dem_proc::run::run` and
+/// `lbm_proc::run::run`, the same functions the two binaries call, on two
+/// threads of this process exchanging over in-memory channels
+/// ([`schemas::exchange::memory_pair`]). Writes dem.mcap, lbm.mcap and both
+/// summaries into `out`; returns the DEM's and the LBM's summaries.
+pub fn run_coupled_in_process(
+    scene_path: &str,
+    set: &[String],
+    out: &Path,
+) -> (schemas::summary::RunSummary, schemas::summary::RunSummary) {
+    let scene = schemas::Scene::load(&repo_root().join(scene_path), set).expect("scene loads");
+    let opts = schemas::process::RunOptions { out_dir: out.to_path_buf(), record: true };
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let (mut dem_end, lbm_end) = schemas::exchange::memory_pair();
+    std::thread::scope(|s| {
+        let lbm = s.spawn(|| {
+            let mut end = lbm_end;
+            let r = lbm_proc::run::run(&scene, &opts, &stop, &mut Quiet, Some(&mut end));
+            drop(end);
+            r
+        });
+        let dem = dem_proc::run::run(&scene, &opts, &stop, &mut Quiet, Some(&mut dem_end));
+        drop(dem_end);
+        let lbm = lbm.join().expect("LBM thread");
+        (dem.expect("DEM run"), lbm.expect("LBM run"))
+    })
+}
+
+/// Every `/dem/state` frame of a DEM recording, decoded.
+pub fn dem_states(mcap_path: &Path) -> Vec<dem_proc::run::DemState> {
+    let bytes = std::fs::read(mcap_path).expect("recording exists");
+    let mut out = Vec::new();
+    for msg in mcap::MessageStream::new(&bytes).expect("mcap") {
+        let msg = msg.expect("message");
+        if msg.channel.topic == schemas::record::topics::DEM_STATE {
+            out.push(dem_proc::run::DemState::decode(&msg.data).expect("state decodes"));
+        }
+    }
+    out
+}

@@ -1,0 +1,150 @@
+//! What `dem_proc` and `lbm_proc` exchange once per LBM step, and the two
+//! views of a peer each solver steps against (docs/coupling.md).
+//!
+//! The solvers never see the transport: the DEM talks to a [`LoadPeer`], the
+//! LBM to a [`StatePeer`]. Over shared memory both are the iceoryx2 link of
+//! [`crate::link`]; in one process (the test-only driver) the DEM's peer
+//! steps the LBM directly; for isolation runs a peer replays a recording.
+//! The same messages in the same order reach the solver in every case, so
+//! the transport cannot change a result.
+
+/// Bit of [`ExchangeHeader::flags`]: the sender stops after this message
+/// (end of run, at rest, interrupted or failed); the receiver finishes too.
+pub const FLAG_STOP: u32 = 1;
+
+/// DEM → LBM, one per grain at the exchange time. SI, f64.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ParticleState {
+    /// Grain index (the recording's id).
+    pub id: u32,
+    pub _pad: u32,
+    /// Centre, m.
+    pub position: [f64; 3],
+    /// m/s.
+    pub velocity: [f64; 3],
+    /// rad/s.
+    pub angular_velocity: [f64; 3],
+    /// m.
+    pub radius: f64,
+}
+
+/// LBM → DEM, one per grain: what the liquid does over the next DEM sub-steps. SI.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct HydroLoad {
+    /// Grain index, as in the [`ParticleState`] it answers.
+    pub id: u32,
+    pub _pad: u32,
+    /// Drag, lift, pressure and buoyancy of the wetted part, and the inertia
+    /// of the liquid inside the grain: the momentum flux through its surface, N.
+    pub force: [f64; 3],
+    /// About the grain centre, N m.
+    pub torque: [f64; 3],
+    /// Liquid mass the grain covers, kg (ρ_L times its wetted volume): how
+    /// deep the grain sits in the liquid, for the record.
+    pub liquid_mass: f64,
+}
+
+/// Carried by every exchange message.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ExchangeHeader {
+    /// Exchange index n, 0-based: the LBM step that the message belongs to.
+    pub exchange: u64,
+    /// Simulated time t_n of the exchange, s.
+    pub time: f64,
+    /// Number of records in the message.
+    pub count: u32,
+    /// [`FLAG_STOP`] or 0.
+    pub flags: u32,
+}
+
+impl ExchangeHeader {
+    pub fn is_stop(&self) -> bool {
+        self.flags & FLAG_STOP != 0
+    }
+}
+
+/// Why an exchange failed; the message names the cause and the fix.
+pub type PeerError = Box<dyn std::error::Error + Send + Sync>;
+
+/// The DEM's side of an exchange.
+pub trait LoadPeer {
+    /// Publishes the grain states of exchange `header.exchange`.
+    fn send_states(&mut self, header: ExchangeHeader, states: &[ParticleState]) -> Result<(), PeerError>;
+    /// The loads of exchange `exchange` (waits for them); `out` is resized to the count.
+    fn receive_loads(&mut self, exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError>;
+}
+
+/// The LBM's side of an exchange.
+pub trait StatePeer {
+    /// The grain states of exchange `exchange` (waits for them); a header
+    /// with [`FLAG_STOP`] ends the run.
+    fn receive_states(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError>;
+    /// Publishes the loads of exchange `header.exchange`.
+    fn send_loads(&mut self, header: ExchangeHeader, loads: &[HydroLoad]) -> Result<(), PeerError>;
+}
+
+/// Both ends of an exchange inside one process, over `std::sync::mpsc`
+/// channels: the test-only driver that runs `dem_proc::run::run` and
+/// `lbm_proc::run::run` on two threads of one process. Against the
+/// iceoryx2 run it shows that the transport adds nothing.
+pub fn memory_pair() -> (MemoryDemEnd, MemoryLbmEnd) {
+    let (state_tx, state_rx) = std::sync::mpsc::channel();
+    let (load_tx, load_rx) = std::sync::mpsc::channel();
+    (MemoryDemEnd { states: state_tx, loads: load_rx }, MemoryLbmEnd { states: state_rx, loads: load_tx })
+}
+
+/// The DEM's end of [`memory_pair`].
+#[derive(Debug)]
+pub struct MemoryDemEnd {
+    states: std::sync::mpsc::Sender<(ExchangeHeader, Vec<ParticleState>)>,
+    loads: std::sync::mpsc::Receiver<(ExchangeHeader, Vec<HydroLoad>)>,
+}
+
+/// The LBM's end of [`memory_pair`].
+#[derive(Debug)]
+pub struct MemoryLbmEnd {
+    states: std::sync::mpsc::Receiver<(ExchangeHeader, Vec<ParticleState>)>,
+    loads: std::sync::mpsc::Sender<(ExchangeHeader, Vec<HydroLoad>)>,
+}
+
+fn check_order(side: &str, expected: u64, header: &ExchangeHeader) -> Result<(), PeerError> {
+    if header.exchange != expected && !header.is_stop() {
+        return Err(format!(
+            "{side} expected exchange {expected}, got {}: both processes must step the same scene in lockstep",
+            header.exchange
+        )
+        .into());
+    }
+    Ok(())
+}
+
+impl LoadPeer for MemoryDemEnd {
+    fn send_states(&mut self, header: ExchangeHeader, states: &[ParticleState]) -> Result<(), PeerError> {
+        self.states.send((header, states.to_vec())).map_err(|_| "the LBM end of the in-process exchange is gone".into())
+    }
+    fn receive_loads(&mut self, exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError> {
+        let (header, loads) =
+            self.loads.recv().map_err(|_| PeerError::from("the LBM end of the in-process exchange is gone"))?;
+        check_order("DEM", exchange, &header)?;
+        *out = loads;
+        Ok(header)
+    }
+}
+
+impl StatePeer for MemoryLbmEnd {
+    fn receive_states(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError> {
+        let (header, states) =
+            self.states.recv().map_err(|_| PeerError::from("the DEM end of the in-process exchange is gone"))?;
+        check_order("LBM", exchange, &header)?;
+        *out = states;
+        Ok(header)
+    }
+    fn send_loads(&mut self, header: ExchangeHeader, loads: &[HydroLoad]) -> Result<(), PeerError> {
+        // The DEM may have finished and dropped its end: not an error for the sender.
+        let _ = self.loads.send((header, loads.to_vec()));
+        Ok(())
+    }
+}
