@@ -2,6 +2,7 @@
 
 mod check;
 mod inspect;
+mod merge;
 mod supervise;
 
 use std::path::PathBuf;

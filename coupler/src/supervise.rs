@@ -12,9 +12,10 @@ use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use tokio::io::{AsyncBufReadExt, BufReader};
-use tokio::process::{Child, Command};
+use tokio::process::Command;
 use tokio::signal::unix::{signal, SignalKind};
 
+use schemas::scene::Schedule;
 use schemas::{Method, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
 
 /// The directory holding this executable; solver binaries are its siblings.
@@ -117,52 +118,73 @@ impl<R: tokio::io::AsyncRead + Unpin> LossyLines<R> {
     }
 }
 
-/// Sends `sig` to a running child.
-fn send_signal(child: &Child, sig: i32) {
-    if let Some(pid) = child.id() {
-        // SAFETY: kill(2) with a pid we spawned and still own (not yet reaped).
-        unsafe {
-            libc::kill(pid as i32, sig);
-        }
+/// The solver processes a method runs: binary name and the short name of
+/// its outputs (`<short>.mcap`, `<short>_summary.json`). The first one's
+/// progress drives the bar; in a coupled run the DEM leads time.
+fn solvers_for(method: Method) -> &'static [(&'static str, &'static str)] {
+    match method {
+        Method::DemDry => &[("dem_proc", "dem")],
+        Method::LbmFluid => &[("lbm_proc", "lbm")],
+        Method::DemLbm => &[("dem_proc", "dem"), ("lbm_proc", "lbm")],
     }
 }
 
-/// The one solver process a method runs: binary name and the short name of its outputs.
-fn solver_for(method: Method) -> Option<(&'static str, &'static str)> {
-    match method {
-        Method::DemDry => Some(("dem_proc", "dem")),
-        Method::LbmFluid => Some(("lbm_proc", "lbm")),
-        Method::DemLbm => None,
+/// What a child's watcher task reports.
+enum Event {
+    Progress(serde_json::Value),
+    Line(String),
+    Exited(usize, std::io::Result<std::process::ExitStatus>),
+}
+
+/// How long the other process of a coupled run may take to finish after the
+/// first one ended normally (it records its last frame and state).
+const PEER_FINISH_GRACE: Duration = Duration::from_secs(300);
+/// How long the other process may take to stop after the first one failed.
+const PEER_STOP_GRACE: Duration = Duration::from_secs(10);
+
+/// A run id for iceoryx2 service names: unique on this machine, short, [A-Za-z0-9_-].
+fn new_run_id(scene: &Scene) -> String {
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
+    let name: String = scene.spec.scene.name.chars().take(16).collect();
+    format!("{name}-{}-{:x}", std::process::id(), (nanos % (1 << 32)) as u64)
+}
+
+fn describe(status: &std::process::ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (status.code(), status.signal()) {
+        (Some(c), _) => format!("exit status {c}"),
+        (None, Some(9)) => "killed by signal 9 (SIGKILL)".into(),
+        (None, Some(s)) => format!("killed by signal {s}"),
+        _ => "unknown status".into(),
     }
 }
 
 pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool) -> ExitCode {
     let started = Instant::now();
     let method = scene.method();
-    let Some((solver, short)) = solver_for(method) else {
-        eprintln!(
-            "coupler: scene {} needs the {} method (dem_proc + lbm_proc coupled), which this build does not have yet: dry DEM scenes and fluid-only LBM scenes run so far",
-            scene.spec.scene.name,
-            method.name(),
-        );
-        return ExitCode::from(EXIT_BAD_SCENE as u8);
-    };
-    let solver_bin = match sibling_binary(solver) {
-        Ok(p) => p,
-        Err(e) => {
-            eprintln!("coupler: {e}");
-            return ExitCode::FAILURE;
+    let solvers = solvers_for(method);
+    let mut bins = Vec::new();
+    for (solver, _) in solvers {
+        match sibling_binary(solver) {
+            Ok(p) => bins.push(p),
+            Err(e) => {
+                eprintln!("coupler: {e}");
+                return ExitCode::FAILURE;
+            }
         }
-    };
+    }
     if let Err(e) = std::fs::create_dir_all(&out) {
         eprintln!("coupler: cannot create output directory {}: {e}", out.display());
         return ExitCode::FAILURE;
     }
     // A reused output directory must not show a previous run's results as this one's.
-    for stale in
-        ["run.mcap".to_string(), format!("{short}.mcap"), "summary.json".into(), format!("{short}_summary.json")]
-    {
-        let path = out.join(stale);
+    let mut stale = vec!["run.mcap".to_string(), "summary.json".into()];
+    for (_, short) in solvers {
+        stale.push(format!("{short}.mcap"));
+        stale.push(format!("{short}_summary.json"));
+    }
+    for name in stale {
+        let path = out.join(name);
         if path.exists() {
             if let Err(e) = std::fs::remove_file(&path) {
                 eprintln!("coupler: cannot remove the previous run's {}: {e}", path.display());
@@ -170,35 +192,88 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
             }
         }
     }
+    let scene_toml = scene.to_toml();
     let scene_file = out.join("scene.toml");
-    if let Err(e) = std::fs::write(&scene_file, scene.to_toml()) {
+    if let Err(e) = std::fs::write(&scene_file, &scene_toml) {
         eprintln!("coupler: cannot write {}: {e} (is the disk full?)", scene_file.display());
         return ExitCode::FAILURE;
     }
-    // Relative explicit-sphere files resolve against the original scene directory;
-    // the resolved scene embeds them instead.
-    let mut cmd = Command::new(&solver_bin);
-    cmd.arg("run").arg(&scene_file).arg("--out").arg(&out).arg("--progress-json").arg("--supervised");
-    if let Some(n) = threads {
-        cmd.arg("--threads").arg(n.to_string());
-    }
-    cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).stdin(Stdio::null()).kill_on_drop(true);
-    let mut child = match cmd.spawn() {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("coupler: cannot start {}: {e}", solver_bin.display());
-            return ExitCode::FAILURE;
+    let coupled = solvers.len() > 1;
+    let run_id = new_run_id(&scene);
+    // Concurrent: both work at once, one core each; sequential: they take turns with all cores.
+    let threads = threads.or((coupled && scene.spec.coupling.schedule == Schedule::Concurrent).then_some(1));
+
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let mut pids = Vec::new();
+    for (k, ((solver, _), bin)) in solvers.iter().zip(&bins).enumerate() {
+        // Relative explicit-sphere files resolve against the original scene
+        // directory; the resolved scene embeds them instead.
+        let mut cmd = Command::new(bin);
+        cmd.arg("run").arg(&scene_file).arg("--out").arg(&out).arg("--progress-json").arg("--supervised");
+        if let Some(n) = threads {
+            cmd.arg("--threads").arg(n.to_string());
         }
-    };
+        if coupled {
+            cmd.arg("--run-id").arg(&run_id);
+        }
+        cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).stdin(Stdio::null()).kill_on_drop(true);
+        let mut child = match cmd.spawn() {
+            Ok(c) => c,
+            Err(e) => {
+                eprintln!("coupler: cannot start {}: {e}", bin.display());
+                for &pid in &pids {
+                    kill_pid(pid, libc::SIGKILL);
+                }
+                return ExitCode::FAILURE;
+            }
+        };
+        pids.push(child.id());
+        let tx = tx.clone();
+        let lead = k == 0;
+        tokio::spawn(async move {
+            let mut stdout = LossyLines::new(child.stdout.take().expect("piped"));
+            let mut stderr = LossyLines::new(child.stderr.take().expect("piped"));
+            let (mut out_open, mut err_open) = (true, true);
+            let status = loop {
+                tokio::select! {
+                    line = stdout.next_line(), if out_open => match line {
+                        Some(l) => {
+                            if let Ok(ev) = serde_json::from_str::<serde_json::Value>(&l) {
+                                if lead && ev["event"] == "progress" { let _ = tx.send(Event::Progress(ev)); }
+                            }
+                        }
+                        None => out_open = false,
+                    },
+                    line = stderr.next_line(), if err_open => match line {
+                        Some(l) => { let _ = tx.send(Event::Line(l)); }
+                        None => err_open = false,
+                    },
+                    st = child.wait() => break st,
+                }
+            };
+            // Drain what the child wrote just before exiting.
+            while err_open {
+                match tokio::time::timeout(Duration::from_millis(200), stderr.next_line()).await {
+                    Ok(Some(l)) => {
+                        let _ = tx.send(Event::Line(l));
+                    }
+                    _ => err_open = false,
+                }
+            }
+            let _ = tx.send(Event::Exited(k, status));
+        });
+    }
+    drop(tx);
+    let names: Vec<&str> = solvers.iter().map(|(s, _)| *s).collect();
     eprintln!(
-        "coupler: running {} ({}) with {solver}, output in {}",
+        "coupler: running {} ({}) with {}{}, output in {}",
         scene.spec.scene.name,
         method.name(),
+        names.join(" + "),
+        if coupled { format!(" (run id {run_id}, {} schedule)", scene.spec.coupling.schedule.name()) } else { String::new() },
         out.display()
     );
 
-    let mut stdout = LossyLines::new(child.stdout.take().expect("piped"));
-    let mut stderr = LossyLines::new(child.stderr.take().expect("piped"));
     let (mut sigint, mut sigterm) = match (signal(SignalKind::interrupt()), signal(SignalKind::terminate())) {
         (Ok(a), Ok(b)) => (a, b),
         _ => {
@@ -208,138 +283,228 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     };
     let mut bar = Bar::new(quiet);
     let mut interrupts = 0;
-    let mut stdout_open = true;
-    let mut stderr_open = true;
-    let status = loop {
+    let mut statuses: Vec<Option<std::process::ExitStatus>> = vec![None; solvers.len()];
+    let mut first_failure: Option<(usize, std::process::ExitStatus)> = None;
+    let mut kill_at: Option<tokio::time::Instant> = None;
+    let far = tokio::time::Instant::now() + Duration::from_secs(86400 * 365);
+    loop {
         tokio::select! {
-            line = stdout.next_line(), if stdout_open => match line {
-                Some(l) => {
-                    if let Ok(ev) = serde_json::from_str::<serde_json::Value>(&l) {
-                        if ev["event"] == "progress" { bar.progress(&ev); }
+            ev = rx.recv() => match ev {
+                Some(Event::Progress(ev)) => bar.progress(&ev),
+                Some(Event::Line(l)) => bar.println(&l),
+                Some(Event::Exited(k, st)) => {
+                    let st = match st {
+                        Ok(s) => s,
+                        Err(e) => {
+                            bar.println(&format!("coupler: lost track of {}: {e}", names[k]));
+                            std::os::unix::process::ExitStatusExt::from_raw(1 << 8)
+                        }
+                    };
+                    statuses[k] = Some(st);
+                    let running: Vec<usize> = (0..names.len()).filter(|&j| statuses[j].is_none()).collect();
+                    let normal = st.success() || (interrupts > 0 && st.code() == Some(EXIT_INTERRUPTED));
+                    if !normal && first_failure.is_none() {
+                        first_failure = Some((k, st));
+                    }
+                    if !running.is_empty() {
+                        if normal {
+                            kill_at.get_or_insert(tokio::time::Instant::now() + PEER_FINISH_GRACE);
+                        } else {
+                            let others: Vec<&str> = running.iter().map(|&j| names[j]).collect();
+                            bar.println(&format!("coupler: {} ended ({}); stopping {}", names[k], describe(&st), others.join(", ")));
+                            for &j in &running {
+                                kill_pid(pids[j], libc::SIGINT);
+                            }
+                            kill_at = Some(tokio::time::Instant::now() + PEER_STOP_GRACE);
+                        }
                     }
                 }
-                _ => stdout_open = false,
+                None => break,
             },
-            line = stderr.next_line(), if stderr_open => match line {
-                Some(l) => bar.println(&l),
-                None => stderr_open = false,
-            },
-            _ = sigint.recv() => { interrupts += 1; forward(&child, solver, interrupts, &bar); }
-            _ = sigterm.recv() => { interrupts += 1; forward(&child, solver, interrupts, &bar); }
-            st = child.wait() => break st,
-        }
-    };
-    // Drain what the child wrote just before exiting.
-    while stderr_open {
-        match tokio::time::timeout(Duration::from_millis(200), stderr.next_line()).await {
-            Ok(Some(l)) => bar.println(&l),
-            _ => stderr_open = false,
+            _ = sigint.recv() => { interrupts += 1; forward(&pids, &statuses, &names, interrupts, &bar); }
+            _ = sigterm.recv() => { interrupts += 1; forward(&pids, &statuses, &names, interrupts, &bar); }
+            _ = tokio::time::sleep_until(kill_at.unwrap_or(far)), if kill_at.is_some() => {
+                for j in (0..names.len()).filter(|&j| statuses[j].is_none()) {
+                    bar.println(&format!("coupler: {} did not stop in time; killing it", names[j]));
+                    kill_pid(pids[j], libc::SIGKILL);
+                }
+                kill_at = None;
+            }
         }
     }
     bar.finish();
-    let status = match status {
-        Ok(s) => s,
-        Err(e) => {
-            eprintln!("coupler: lost track of {solver}: {e}");
-            return ExitCode::FAILURE;
+    if coupled {
+        let cleaned = schemas::link::cleanup_stale(Some(&run_id));
+        if cleaned > 0 {
+            eprintln!("coupler: removed the shared memory of {cleaned} dead process(es) of run {run_id}");
         }
-    };
+    }
 
-    let recording = collect_recording(&out, short);
-    let summary = finish_summary(&out, short, started.elapsed().as_secs_f64(), interrupts > 0 && !status.success());
+    let interrupted = interrupts > 0;
+    let summary = finish_summary(&out, solvers, started.elapsed().as_secs_f64(), interrupted, first_failure.is_some());
+    let recording = collect_recording(&out, solvers, &scene_toml, summary.as_ref());
     let recorded = recording.exists();
-    match status.code() {
-        Some(0) => match &summary {
-            Some(s) => {
-                report(s, &out);
-                ExitCode::SUCCESS
-            }
-            None => {
-                eprintln!("coupler: {solver} finished but left no readable summary in {}", out.display());
-                ExitCode::FAILURE
-            }
-        },
-        Some(c) if c == EXIT_INTERRUPTED => {
-            if recorded {
-                eprintln!(
-                    "coupler: run interrupted; the recording up to the interruption is in {}",
-                    recording.display()
-                );
-            } else {
-                eprintln!("coupler: run interrupted before the collapse started; nothing was recorded");
-            }
-            ExitCode::from(EXIT_INTERRUPTED as u8)
+    let codes: Vec<Option<i32>> = statuses.iter().map(|s| s.and_then(|s| s.code())).collect();
+    if let Some((k, st)) = first_failure {
+        if codes[k] == Some(EXIT_BAD_SCENE) {
+            eprintln!("coupler: {} rejected the scene (exit status 2); see the message above", names[k]);
+            return ExitCode::from(EXIT_BAD_SCENE as u8);
         }
-        Some(c) if c == EXIT_BAD_SCENE => {
-            eprintln!("coupler: {solver} rejected the scene (exit status 2); see the message above");
-            ExitCode::from(EXIT_BAD_SCENE as u8)
+        if interrupts > 1 {
+            eprintln!("coupler: killed after a second interrupt; {} may lack its summary section (streaming MCAP readers still read it)", recording.display());
+            return ExitCode::from(EXIT_INTERRUPTED as u8);
         }
-        _ if interrupts > 1 => {
-            eprintln!("coupler: {solver} killed after a second interrupt; {} may lack its summary section (streaming MCAP readers still read it)", recording.display());
-            ExitCode::from(EXIT_INTERRUPTED as u8)
+        let others = if coupled { "; the other process was stopped" } else { "" };
+        eprintln!(
+            "coupler: {} failed ({}){others}; see its message above. What was recorded so far is in {} (readable by streaming MCAP readers)",
+            names[k],
+            describe(&st),
+            recording.display()
+        );
+        return ExitCode::FAILURE;
+    }
+    if interrupted {
+        if recorded {
+            eprintln!("coupler: run interrupted; the recording up to the interruption is in {}", recording.display());
+        } else {
+            eprintln!("coupler: run interrupted before the collapse started; nothing was recorded");
         }
-        code => {
-            let how = match code {
-                Some(c) => format!("exit status {c}"),
-                None => {
-                    use std::os::unix::process::ExitStatusExt;
-                    format!("signal {}", status.signal().unwrap_or(0))
-                }
-            };
-            eprintln!(
-                "coupler: {solver} failed ({how}); see its message above. What was recorded so far is in {} (readable by streaming MCAP readers)",
-                recording.display()
-            );
+        return ExitCode::from(EXIT_INTERRUPTED as u8);
+    }
+    match &summary {
+        Some(s) => {
+            report(s, &out);
+            ExitCode::SUCCESS
+        }
+        None => {
+            eprintln!("coupler: {} finished but left no readable summary in {}", names.join(" + "), out.display());
             ExitCode::FAILURE
         }
     }
 }
 
-fn forward(child: &Child, solver: &str, count: u32, bar: &Bar) {
+fn kill_pid(pid: Option<u32>, sig: i32) {
+    if let Some(pid) = pid {
+        // SAFETY: kill(2) on a pid we spawned; a process already reaped may
+        // in theory be reused, but our children are waited by their tasks
+        // only after they exit, and we signal only those still running.
+        unsafe {
+            libc::kill(pid as i32, sig);
+        }
+    }
+}
+
+fn forward(pids: &[Option<u32>], statuses: &[Option<std::process::ExitStatus>], names: &[&str], count: u32, bar: &Bar) {
+    let running = (0..pids.len()).filter(|&j| statuses[j].is_none());
     if count == 1 {
         bar.println("coupler: stopping at the next step boundary (press Ctrl-C again to kill)");
-        send_signal(child, libc::SIGINT);
+        for j in running {
+            kill_pid(pids[j], libc::SIGINT);
+        }
     } else {
-        bar.println(&format!("coupler: killing {solver}"));
-        send_signal(child, libc::SIGKILL);
+        for j in running {
+            bar.println(&format!("coupler: killing {}", names[j]));
+            kill_pid(pids[j], libc::SIGKILL);
+        }
     }
 }
 
-/// With one solver process its recording is the run's recording.
-fn collect_recording(out: &Path, short: &str) -> PathBuf {
+/// The run's recording: with one solver process its file renamed; with two,
+/// both merged into one timeline (the inputs removed once merged).
+fn collect_recording(
+    out: &Path,
+    solvers: &[(&str, &str)],
+    scene_toml: &str,
+    summary: Option<&serde_json::Value>,
+) -> PathBuf {
     let run = out.join("run.mcap");
-    let solver = out.join(format!("{short}.mcap"));
-    if solver.exists() {
-        if let Err(e) = std::fs::rename(&solver, &run) {
-            eprintln!("coupler: cannot move {} to {}: {e}", solver.display(), run.display());
-            return solver;
+    let inputs: Vec<PathBuf> = solvers.iter().map(|(_, short)| out.join(format!("{short}.mcap"))).collect();
+    if inputs.len() == 1 {
+        if inputs[0].exists() {
+            if let Err(e) = std::fs::rename(&inputs[0], &run) {
+                eprintln!("coupler: cannot move {} to {}: {e}", inputs[0].display(), run.display());
+                return inputs[0].clone();
+            }
+        }
+        return run;
+    }
+    if !inputs.iter().any(|p| p.exists()) {
+        return run;
+    }
+    let json = summary.map(|s| serde_json::to_string_pretty(s).expect("serialises"));
+    let refs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+    match crate::merge::merge_recordings(&refs, &run, scene_toml, json.as_deref()) {
+        Ok(merged) => {
+            for t in &merged.truncated {
+                eprintln!("coupler: {t} ended early (its process stopped before finishing it); its complete chunks are in run.mcap");
+            }
+            for p in &inputs {
+                let _ = std::fs::remove_file(p);
+            }
+            run
+        }
+        Err(e) => {
+            eprintln!("coupler: could not merge the recordings into {}: {e}; the per-process files are kept", run.display());
+            let _ = std::fs::remove_file(&run);
+            inputs[0].clone()
         }
     }
-    run
 }
 
-/// Adds the coupler's fields to the solver's summary and writes `summary.json`.
-/// Kept as JSON values: NaN measures arrive as null and stay null.
-fn finish_summary(out: &Path, short: &str, wall_total: f64, interrupted: bool) -> Option<serde_json::Value> {
-    let solver_summary = out.join(format!("{short}_summary.json"));
-    let text = std::fs::read_to_string(&solver_summary).ok()?;
-    let mut summary: serde_json::Value = match serde_json::from_str(&text) {
-        Ok(v) => v,
-        Err(e) => {
-            eprintln!("coupler: {} is not valid JSON: {e}", solver_summary.display());
-            return None;
+/// Adds the coupler's fields to the solvers' summaries and writes
+/// `summary.json`. Kept as JSON values: NaN measures arrive as null and stay
+/// null. A coupled run's summary is the DEM's (fronts, runout, deposit) with
+/// the LBM's liquid front, lattice details and throughput, and the exchange
+/// as each process saw it.
+fn finish_summary(
+    out: &Path,
+    solvers: &[(&str, &str)],
+    wall_total: f64,
+    interrupted: bool,
+    failed: bool,
+) -> Option<serde_json::Value> {
+    let mut parts = Vec::new();
+    for (_, short) in solvers {
+        let path = out.join(format!("{short}_summary.json"));
+        let Ok(text) = std::fs::read_to_string(&path) else { continue };
+        match serde_json::from_str::<serde_json::Value>(&text) {
+            Ok(v) => parts.push((*short, path, v)),
+            Err(e) => eprintln!("coupler: {} is not valid JSON: {e}", path.display()),
         }
-    };
+    }
+    if parts.len() != solvers.len() && !(failed && !parts.is_empty()) {
+        return None;
+    }
+    let mut summary = parts[0].2.clone();
+    if solvers.len() > 1 {
+        let mut exchange = serde_json::Map::new();
+        for (short, _, part) in &parts {
+            exchange.insert((*short).into(), part["exchange"].clone());
+            if *short == "lbm" {
+                summary["liquid_front"] = part["liquid_front"].clone();
+                summary["lbm"] = part["lbm"].clone();
+                summary["throughput"]["cell_updates_per_s"] = part["throughput"]["cell_updates_per_s"].clone();
+                summary["wall_seconds_lbm"] = part["wall_seconds"].clone();
+            }
+        }
+        exchange.insert("schedule".into(), parts[0].2["exchange"]["schedule"].clone());
+        summary["exchange"] = exchange.into();
+        summary["method"] = "dem_lbm".into();
+    }
     summary["wall_seconds_total"] = wall_total.into();
     if interrupted {
         summary["status"] = "interrupted".into();
+    } else if failed {
+        summary["status"] = "failed".into();
     }
     let path = out.join("summary.json");
     if let Err(e) = std::fs::write(&path, serde_json::to_string_pretty(&summary).expect("serialises")) {
         eprintln!("coupler: cannot write {}: {e} (is the disk full?)", path.display());
         return None;
     }
-    let _ = std::fs::remove_file(solver_summary);
+    for (_, p, _) in &parts {
+        let _ = std::fs::remove_file(p);
+    }
     Some(summary)
 }
 
