@@ -4,6 +4,7 @@
 
 pub mod contact;
 pub mod error;
+pub mod link;
 pub mod measures;
 pub mod metrics;
 pub mod overrides;
