@@ -205,7 +205,7 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
 
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
     let mut pids = Vec::new();
-    for (k, ((solver, _), bin)) in solvers.iter().zip(&bins).enumerate() {
+    for (k, bin) in bins.iter().enumerate() {
         // Relative explicit-sphere files resolve against the original scene
         // directory; the resolved scene embeds them instead.
         let mut cmd = Command::new(bin);
@@ -270,7 +270,11 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
         scene.spec.scene.name,
         method.name(),
         names.join(" + "),
-        if coupled { format!(" (run id {run_id}, {} schedule)", scene.spec.coupling.schedule.name()) } else { String::new() },
+        if coupled {
+            format!(" (run id {run_id}, {} schedule)", scene.spec.coupling.schedule.name())
+        } else {
+            String::new()
+        },
         out.display()
     );
 
@@ -444,7 +448,10 @@ fn collect_recording(
             run
         }
         Err(e) => {
-            eprintln!("coupler: could not merge the recordings into {}: {e}; the per-process files are kept", run.display());
+            eprintln!(
+                "coupler: could not merge the recordings into {}: {e}; the per-process files are kept",
+                run.display()
+            );
             let _ = std::fs::remove_file(&run);
             inputs[0].clone()
         }

@@ -14,10 +14,14 @@
 //! measured it (lbm_proc `coupling`, step 6): drag, pressure, buoyancy and
 //! the inertia of the liquid inside the grain, so the DEM adds nothing.
 
-use schemas::exchange::{ExchangeHeader, HydroLoad, LoadPeer, ParticleState, PeerError, FLAG_STOP};
+use schemas::exchange::{ExchangeHeader, HydroLoad, LoadPeer, ParticleState, PeerError, FLAG_STOPPING};
 use schemas::scene::{Scene, Schedule};
 
 use crate::world::World;
+
+/// Opens the DEM's side of the exchange once the grain count is known
+/// (after the packing): an iceoryx2 link, or an in-process channel in tests.
+pub type Connect<'a> = Box<dyn FnOnce(usize) -> Result<Box<dyn LoadPeer + 'a>, PeerError> + 'a>;
 
 /// State of the exchange kept between calls (no allocation after the first).
 #[derive(Debug, Clone)]
@@ -107,8 +111,12 @@ impl HydroExchange {
     /// Tells the peer the DEM stops: a state message with the stop flag.
     pub fn finish(&mut self, world: &World, peer: &mut dyn LoadPeer) -> Result<(), PeerError> {
         self.capture_states(world);
-        let header =
-            ExchangeHeader { exchange: self.next, time: world.time, count: self.states.len() as u32, flags: FLAG_STOP };
+        let header = ExchangeHeader {
+            exchange: self.next,
+            time: world.time,
+            count: self.states.len() as u32,
+            flags: FLAG_STOPPING,
+        };
         peer.send_states(header, &self.states)
     }
 
@@ -128,7 +136,7 @@ impl HydroExchange {
     /// Receives exchange `n`; true when the peer stops.
     fn receive(&mut self, world: &World, n: u64, peer: &mut dyn LoadPeer) -> Result<bool, PeerError> {
         let header = peer.receive_loads(n, &mut self.loads)?;
-        if header.is_stop() {
+        if header.is_stopping() {
             return Ok(true);
         }
         if self.loads.len() != world.len() || self.loads.iter().enumerate().any(|(p, l)| l.id as usize != p) {

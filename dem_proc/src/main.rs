@@ -155,9 +155,21 @@ fn main() -> ExitCode {
             };
             let progress_json = args.progress_json;
             let mut reporter = Reporter { json: progress_json, started: Instant::now() };
-            let out_dir = args.out.unwrap_or_else(|| PathBuf::from("runs/dem"));
+            let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs/dem"));
             let opts = RunOptions { out_dir, record: !args.no_record };
-            match run(&scene, &opts, &stop, &mut reporter, None) {
+            // Coupled: connect once the packing has its grain count.
+            let link = match schemas::process::link_config("dem_proc", &args, &scene, &stop, 0) {
+                Ok(l) => l,
+                Err(code) => return code,
+            };
+            let connect: Option<dem_proc::hydro::Connect> = link.map(|cfg| {
+                Box::new(move |grains: usize| {
+                    let cfg = schemas::link::LinkConfig { particles: grains, ..cfg };
+                    let link = schemas::link::DemLink::connect(&cfg)?;
+                    Ok(Box::new(link) as Box<dyn schemas::exchange::LoadPeer>)
+                }) as dem_proc::hydro::Connect
+            });
+            match run(&scene, &opts, &stop, &mut reporter, connect) {
                 Ok(summary) => {
                     tell!(
                         "dem_proc: {} at t = {:.4} s after {} steps in {:.1} s ({:.3e} particle-steps/s); runout {:.4}",

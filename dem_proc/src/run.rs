@@ -9,7 +9,6 @@ use std::time::Instant;
 use foxglove::schemas::{Color, Log, PointCloud, Pose, SceneEntity, SceneUpdate, SpherePrimitive, Vector3};
 use serde::{Deserialize, Serialize};
 
-use schemas::exchange::LoadPeer;
 use schemas::measures::{coordination_shares, deposit_profile, front_position, FrontSample};
 use schemas::metrics::DemMetrics;
 use schemas::process::RunOptions;
@@ -20,7 +19,7 @@ use schemas::record::{
 use schemas::scene::Scene;
 use schemas::summary::{DemDetails, ExchangeDetails, RunSummary, Throughput};
 
-use crate::hydro::{Flow, HydroExchange};
+use crate::hydro::{Connect, Flow, HydroExchange};
 use crate::packing::{self, Packing, PackingError};
 use crate::setup::{walls, DemSetup};
 use crate::world::{Grains, Histories, World};
@@ -157,15 +156,15 @@ pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
 /// Runs the scene. `stop` is polled every step; when set the run ends at the
 /// step boundary with status `interrupted` and a complete recording.
 ///
-/// With a `peer` (a coupled scene), every `coupling.ratio`-th step exchanges
-/// grain states for hydrodynamic loads ([`HydroExchange`]); at the end the
-/// peer gets the stop flag.
+/// With `connect` (a coupled scene), the peer is connected once the packing
+/// is ready; then every `coupling.ratio`-th step exchanges grain states for
+/// hydrodynamic loads ([`HydroExchange`]); at the end the peer gets the stop flag.
 pub fn run(
     scene: &Scene,
     opts: &RunOptions,
     stop: &AtomicBool,
     progress: &mut dyn Progress,
-    mut peer: Option<&mut dyn LoadPeer>,
+    connect: Option<Connect<'_>>,
 ) -> Result<RunSummary, RunError> {
     let setup = DemSetup::from_scene(scene);
     let t_ref = scene.reference_time();
@@ -218,6 +217,13 @@ pub fn run(
 
     let mut world = collapse_world(scene, &setup, &packing);
     let coordination_initial = world.mean_coordination();
+    let mut peer = match connect {
+        Some(c) => {
+            progress.log(&format!("connecting to lbm_proc with {} grains", world.len()));
+            Some(c(world.len()).map_err(|source| RunError::Peer { t: 0.0, source })?)
+        }
+        None => None,
+    };
 
     std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
     let (mcap_path, summary_path) = output_paths(&opts.out_dir);
@@ -323,7 +329,7 @@ pub fn run(
             last_progress = Instant::now();
         }
     }
-    if let (Some(h), Some(p), None) = (hydro.as_mut(), peer, failure.as_ref()) {
+    if let (Some(h), Some(p), None) = (hydro.as_mut(), peer.as_deref_mut(), failure.as_ref()) {
         if status != "peer_stopped" {
             if let Err(source) = h.finish(&world, p) {
                 frames.log(world.time, log_level::WARNING, &format!("could not tell lbm_proc to stop: {source}"))?;

@@ -138,9 +138,28 @@ fn main() -> ExitCode {
             };
             let progress_json = args.progress_json;
             let mut reporter = Reporter { json: progress_json, started: Instant::now() };
-            let out_dir = args.out.unwrap_or_else(|| PathBuf::from("runs/lbm"));
+            let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs/lbm"));
             let opts = RunOptions { out_dir, record: !args.no_record };
-            match run(&scene, &opts, &stop, &mut reporter, None) {
+            let mut link = match schemas::process::link_config("lbm_proc", &args, &scene, &stop, 0) {
+                Ok(None) => None,
+                Ok(Some(cfg)) => {
+                    tell!("lbm_proc: waiting for dem_proc on run id {} (up to {} s)", cfg.run_id, args.connect_timeout);
+                    match schemas::link::LbmLink::connect(&cfg) {
+                        Ok(l) => Some(l),
+                        Err(schemas::link::LinkError::Interrupted) => {
+                            tell!("lbm_proc: interrupted while waiting for dem_proc; nothing recorded");
+                            return ExitCode::from(schemas::EXIT_INTERRUPTED as u8);
+                        }
+                        Err(e) => {
+                            tell!("lbm_proc: error: {e}");
+                            return ExitCode::FAILURE;
+                        }
+                    }
+                }
+                Err(code) => return code,
+            };
+            let peer = link.as_mut().map(|l| l as &mut dyn schemas::exchange::StatePeer);
+            match run(&scene, &opts, &stop, &mut reporter, peer) {
                 Ok(summary) => {
                     let front = summary.liquid_front.last().map(|f| f.x_norm).unwrap_or(f64::NAN);
                     tell!(

@@ -9,7 +9,7 @@ use std::time::Instant;
 use foxglove::schemas::{Grid, Log, PointCloud, Pose, Quaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use schemas::exchange::{ExchangeHeader, StatePeer, FLAG_STOP};
+use schemas::exchange::{ExchangeHeader, StatePeer, FLAG_STOPPING};
 use schemas::measures::{front_position, FrontSample};
 use schemas::metrics::LbmMetrics;
 use schemas::process::RunOptions;
@@ -189,8 +189,7 @@ pub fn run(
 
     let mut forcing = match peer {
         Some(_) => Some(GrainForcing::new(
-            Coupling::new(setup.units, setup.origin)
-                .map_err(|source| RunError::Coupling { exchange: 0, source })?,
+            Coupling::new(setup.units, setup.origin).map_err(|source| RunError::Coupling { exchange: 0, source })?,
         )),
         None => None,
     };
@@ -214,7 +213,7 @@ pub fn run(
                 }
             };
             exchange_seconds += waited.elapsed().as_secs_f64();
-            if header.is_stop() {
+            if header.is_stopping() {
                 frames.log(time, log_level::INFO, &format!("dem_proc stopped at exchange {steps}"))?;
                 break;
             }
@@ -239,7 +238,7 @@ pub fn run(
             frames.log(time, log_level::WARNING, "interrupted by signal; recording the last state")?;
             if let Some(p) = peer.as_deref_mut() {
                 // The DEM may be waiting for this step's load: tell it to stop too.
-                let _ = p.send_loads(ExchangeHeader { exchange: steps, time, count: 0, flags: FLAG_STOP }, &[]);
+                let _ = p.send_loads(ExchangeHeader { exchange: steps, time, count: 0, flags: FLAG_STOPPING }, &[]);
             }
             break;
         }

@@ -8,63 +8,7 @@
 //! The same messages in the same order reach the solver in every case, so
 //! the transport cannot change a result.
 
-/// Bit of [`ExchangeHeader::flags`]: the sender stops after this message
-/// (end of run, at rest, interrupted or failed); the receiver finishes too.
-pub const FLAG_STOP: u32 = 1;
-
-/// DEM → LBM, one per grain at the exchange time. SI, f64.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct ParticleState {
-    /// Grain index (the recording's id).
-    pub id: u32,
-    pub _pad: u32,
-    /// Centre, m.
-    pub position: [f64; 3],
-    /// m/s.
-    pub velocity: [f64; 3],
-    /// rad/s.
-    pub angular_velocity: [f64; 3],
-    /// m.
-    pub radius: f64,
-}
-
-/// LBM → DEM, one per grain: what the liquid does over the next DEM sub-steps. SI.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct HydroLoad {
-    /// Grain index, as in the [`ParticleState`] it answers.
-    pub id: u32,
-    pub _pad: u32,
-    /// Drag, lift, pressure and buoyancy of the wetted part, and the inertia
-    /// of the liquid inside the grain: the momentum flux through its surface, N.
-    pub force: [f64; 3],
-    /// About the grain centre, N m.
-    pub torque: [f64; 3],
-    /// Liquid mass the grain covers, kg (ρ_L times its wetted volume): how
-    /// deep the grain sits in the liquid, for the record.
-    pub liquid_mass: f64,
-}
-
-/// Carried by every exchange message.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct ExchangeHeader {
-    /// Exchange index n, 0-based: the LBM step that the message belongs to.
-    pub exchange: u64,
-    /// Simulated time t_n of the exchange, s.
-    pub time: f64,
-    /// Number of records in the message.
-    pub count: u32,
-    /// [`FLAG_STOP`] or 0.
-    pub flags: u32,
-}
-
-impl ExchangeHeader {
-    pub fn is_stop(&self) -> bool {
-        self.flags & FLAG_STOP != 0
-    }
-}
+pub use crate::link::{ExchangeHeader, HydroLoad, ParticleState, FLAG_STOPPING};
 
 /// Why an exchange failed; the message names the cause and the fix.
 pub type PeerError = Box<dyn std::error::Error + Send + Sync>;
@@ -80,7 +24,7 @@ pub trait LoadPeer {
 /// The LBM's side of an exchange.
 pub trait StatePeer {
     /// The grain states of exchange `exchange` (waits for them); a header
-    /// with [`FLAG_STOP`] ends the run.
+    /// with [`FLAG_STOPPING`] ends the run.
     fn receive_states(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError>;
     /// Publishes the loads of exchange `header.exchange`.
     fn send_loads(&mut self, header: ExchangeHeader, loads: &[HydroLoad]) -> Result<(), PeerError>;
@@ -111,7 +55,7 @@ pub struct MemoryLbmEnd {
 }
 
 fn check_order(side: &str, expected: u64, header: &ExchangeHeader) -> Result<(), PeerError> {
-    if header.exchange != expected && !header.is_stop() {
+    if header.exchange != expected && !header.is_stopping() {
         return Err(format!(
             "{side} expected exchange {expected}, got {}: both processes must step the same scene in lockstep",
             header.exchange
@@ -146,5 +90,30 @@ impl StatePeer for MemoryLbmEnd {
         // The DEM may have finished and dropped its end: not an error for the sender.
         let _ = self.loads.send((header, loads.to_vec()));
         Ok(())
+    }
+}
+
+impl LoadPeer for crate::link::DemLink {
+    fn send_states(&mut self, header: ExchangeHeader, states: &[ParticleState]) -> Result<(), PeerError> {
+        crate::link::DemLink::send_states(self, header, states).map_err(Into::into)
+    }
+    fn receive_loads(&mut self, exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError> {
+        match crate::link::DemLink::receive_loads(self, exchange, out) {
+            // The LBM stopped (interrupted): the DEM stops too, not an error.
+            Err(crate::link::LinkError::PeerStopped { .. }) => Ok(ExchangeHeader::new(exchange, f64::NAN).stopping()),
+            r => r.map_err(Into::into),
+        }
+    }
+}
+
+impl StatePeer for crate::link::LbmLink {
+    fn receive_states(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError> {
+        match crate::link::LbmLink::receive_states(self, exchange, out) {
+            Err(crate::link::LinkError::PeerStopped { .. }) => Ok(ExchangeHeader::new(exchange, f64::NAN).stopping()),
+            r => r.map_err(Into::into),
+        }
+    }
+    fn send_loads(&mut self, header: ExchangeHeader, loads: &[HydroLoad]) -> Result<(), PeerError> {
+        crate::link::LbmLink::send_loads(self, header, loads).map_err(Into::into)
     }
 }

@@ -5,6 +5,7 @@
 pub mod contact;
 pub mod error;
 pub mod exchange;
+pub mod link;
 pub mod measures;
 pub mod metrics;
 pub mod overrides;

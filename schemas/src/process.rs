@@ -78,6 +78,62 @@ pub struct RunArgs {
     /// Stop when the parent process dies (set by `coupler`).
     #[arg(long)]
     pub supervised: bool,
+    /// Coupled scenes: the run id shared with the peer process (`coupler`
+    /// sets it; by hand, start dem_proc and lbm_proc with the same id).
+    #[arg(long)]
+    pub run_id: Option<String>,
+    /// Coupled scenes: seconds to wait for the peer process at start-up.
+    /// The LBM waits while the DEM deposits its packing.
+    #[arg(long, default_value_t = 120.0)]
+    pub connect_timeout: f64,
+}
+
+/// The link settings of a coupled scene: `Ok(None)` for an uncoupled one.
+/// `particles`: the grains per message (0 for the LBM, which takes the
+/// DEM's count at the handshake). Exit status 2 when a coupled scene has no
+/// `--run-id` or an uncoupled one has one.
+pub fn link_config(
+    solver: &str,
+    args: &RunArgs,
+    scene: &crate::Scene,
+    stop: &Arc<AtomicBool>,
+    particles: usize,
+) -> Result<Option<crate::link::LinkConfig>, std::process::ExitCode> {
+    let bad = || std::process::ExitCode::from(crate::EXIT_BAD_SCENE as u8);
+    let coupled = scene.method() == crate::Method::DemLbm;
+    match (&args.run_id, coupled) {
+        (None, false) => Ok(None),
+        (Some(_), false) => {
+            tell!(
+                "{solver}: --run-id is for scenes with grains and fluids (coupled); this scene is {}",
+                scene.method().name()
+            );
+            Err(bad())
+        }
+        (None, true) => {
+            tell!("{solver}: the scene couples grains and fluids: run it with `coupler run`, or start dem_proc and lbm_proc with the same --run-id ID");
+            Err(bad())
+        }
+        (Some(id), true) => {
+            if let Err(e) = crate::link::validate_run_id(id) {
+                tell!("{solver}: {e}");
+                return Err(bad());
+            }
+            if !(args.connect_timeout.is_finite() && args.connect_timeout > 0.0) {
+                tell!("{solver}: --connect-timeout must be a positive number of seconds, got {}", args.connect_timeout);
+                return Err(bad());
+            }
+            let mut cfg = crate::link::LinkConfig::new(id.clone(), scene_hash(scene), particles);
+            cfg.connect_timeout = std::time::Duration::from_secs_f64(args.connect_timeout);
+            cfg.stop = Some(Arc::clone(stop));
+            Ok(Some(cfg))
+        }
+    }
+}
+
+/// Hash of the scene as run (after overrides): both coupled processes must agree on it.
+pub fn scene_hash(scene: &crate::Scene) -> u64 {
+    crate::stable_hash(scene.to_toml().as_bytes())
 }
 
 /// Options of a run that are not part of the physics.

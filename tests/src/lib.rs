@@ -128,7 +128,7 @@ pub fn run_coupled_in_process(
     let scene = schemas::Scene::load(&repo_root().join(scene_path), set).expect("scene loads");
     let opts = schemas::process::RunOptions { out_dir: out.to_path_buf(), record: true };
     let stop = std::sync::atomic::AtomicBool::new(false);
-    let (mut dem_end, lbm_end) = schemas::exchange::memory_pair();
+    let (dem_end, lbm_end) = schemas::exchange::memory_pair();
     std::thread::scope(|s| {
         let lbm = s.spawn(|| {
             let mut end = lbm_end;
@@ -136,8 +136,9 @@ pub fn run_coupled_in_process(
             drop(end);
             r
         });
-        let dem = dem_proc::run::run(&scene, &opts, &stop, &mut Quiet, Some(&mut dem_end));
-        drop(dem_end);
+        let connect: dem_proc::hydro::Connect =
+            Box::new(move |_| Ok(Box::new(dem_end) as Box<dyn schemas::exchange::LoadPeer>));
+        let dem = dem_proc::run::run(&scene, &opts, &stop, &mut Quiet, Some(connect));
         let lbm = lbm.join().expect("LBM thread");
         (dem.expect("DEM run"), lbm.expect("LBM run"))
     })

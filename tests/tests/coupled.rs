@@ -1,7 +1,7 @@
 //! The DEM–LBM coupling end to end: the same run functions the two binaries
 //! call, exchanging every LBM step (docs/coupling.md).
 
-use integration_tests::{dem_states, run_coupled_in_process, scratch_dir};
+use integration_tests::{coupler_run, dem_states, run_coupled_in_process, scratch_dir};
 
 /// Terminal velocity of a sphere in a closed box, first-order reflections:
 /// Stokes drag 3πμDU times the Schiller–Naumann factor 1 + 0.15 Re^0.687,
@@ -29,25 +29,54 @@ fn terminal_velocity(d: f64, rho_s: f64, rho_l: f64, mu: f64, g: f64, side: f64,
 /// the wall distance, so inertia weakens the wall effect (fast again); the
 /// closed box rings acoustically (±5 % in the velocity, period ~0.1 s),
 /// averaged over the 0.2 s window. Measured: +8.0 % (docs/coupling.md).
-#[test]
-fn settling_sphere_reaches_terminal_velocity() {
-    let out = scratch_dir("settling_sphere_in_process");
-    let (dem, lbm) = run_coupled_in_process("scenes/validation/settling_sphere.toml", &[], &out);
-    assert_eq!(dem.status, "completed");
-    assert!(lbm.lbm.as_ref().unwrap().mass_relative_change.abs() < 1e-5);
-    let states = dem_states(&out.join("dem.mcap"));
+/// Mean settling velocity while the centre falls from 12D to 10D above the
+/// floor (past the start-up 5D below the lid, far from both ends), from the
+/// full-precision states of a DEM recording; and the reference there.
+fn measured_and_expected(mcap: &std::path::Path) -> (f64, f64) {
+    let states = dem_states(mcap);
     let track: Vec<(f64, f64, f64)> = states.iter().map(|s| (s.time, s.grains.pos[0][2], s.grains.vel[0][2])).collect();
-    for (t, z, w) in track.iter().step_by(10) {
+    for (t, z, w) in &track {
         eprintln!("t {t:.3} s: z {z:.5} m, w {w:.5} m/s");
     }
     let (d, side, top) = (3.0e-3, 0.024, 0.06);
-    // Mean velocity while the centre falls from 12D to 10D above the floor:
-    // past the start-up (the sphere starts 5D below the lid), far from both ends.
     let find = |z: f64| track.iter().position(|p| p.1 <= z).expect("sphere fell far enough");
     let (a, b) = (find(12.0 * d), find(10.0 * d));
     let measured = -(track[b].1 - track[a].1) / (track[b].0 - track[a].0);
-    let z_mid = 11.0 * d;
+    let z_mid = 0.5 * (track[a].1 + track[b].1);
     let expected = terminal_velocity(d, 4000.0, 1000.0, 1.0 / 3.0, 9.81, side, z_mid, top - z_mid);
+    (measured, expected)
+}
+
+/// The settling sphere across the two real processes (`coupler run`: iceoryx2
+/// shared memory) and in one process (the test-only driver: the same run
+/// functions over in-memory channels): bit-identical trajectories, so the
+/// transport adds nothing; and the terminal velocity of the drag laws.
+#[test]
+fn settling_sphere_two_processes_match_in_process_and_terminal_velocity() {
+    let scene = "scenes/validation/settling_sphere.toml";
+    let two = coupler_run("settling_sphere_two_processes", scene, &[]);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(two.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["status"], "completed");
+    assert_eq!(summary["method"], "dem_lbm");
+    assert_eq!(summary["exchange"]["schedule"], "sequential");
+    assert_eq!(summary["exchange"]["dem"]["exchanges"], summary["exchange"]["lbm"]["exchanges"]);
+    let mass_change = summary["lbm"]["mass_relative_change"].as_f64().unwrap();
+    assert!(mass_change.abs() < 1e-5, "liquid mass changed by {mass_change:e}");
+
+    let one = scratch_dir("settling_sphere_in_process");
+    let (dem, _) = run_coupled_in_process(scene, &[], &one);
+    assert_eq!(dem.status, "completed");
+    let (in_process, two_process) = (dem_states(&one.join("dem.mcap")), dem_states(&two.join("run.mcap")));
+    assert_eq!(in_process.len(), two_process.len(), "same number of state frames");
+    for (a, b) in in_process.iter().zip(&two_process) {
+        assert_eq!(a.time, b.time);
+        assert_eq!(a.grains.pos, b.grains.pos, "positions at t = {} differ", a.time);
+        assert_eq!(a.grains.vel, b.grains.vel, "velocities at t = {} differ", a.time);
+        assert_eq!(a.grains.omega, b.grains.omega, "angular velocities at t = {} differ", a.time);
+    }
+
+    let (measured, expected) = measured_and_expected(&two.join("run.mcap"));
     let err = measured / expected - 1.0;
     eprintln!("terminal velocity {measured:.5} m/s, expected {expected:.5} m/s, error {:+.2} %", 100.0 * err);
     assert!(err.abs() < 0.10, "terminal velocity {measured} m/s vs {expected} m/s ({:+.1} %)", 100.0 * err);
