@@ -284,6 +284,16 @@ pub fn run(
                         frames.log(world.time, log_level::WARNING, "lbm_proc stopped; recording the last state")?;
                         break;
                     }
+                    // Ctrl-C reaches both processes: waiting for the LBM ends with it.
+                    Err(_) if stop.load(Ordering::Relaxed) => {
+                        status = "interrupted";
+                        frames.log(
+                            world.time,
+                            log_level::WARNING,
+                            "interrupted by signal; recording the last state",
+                        )?;
+                        break;
+                    }
                     Err(source) => {
                         status = "peer_failed";
                         frames.log(world.time, log_level::ERROR, &format!("exchange: {source}"))?;

@@ -205,6 +205,12 @@ pub fn run(
             let waited = Instant::now();
             let header = match p.receive_states(steps, &mut states) {
                 Ok(h) => h,
+                // Ctrl-C reaches both processes: waiting for the DEM ends with it.
+                Err(_) if stop.load(Ordering::Relaxed) => {
+                    status = "interrupted";
+                    frames.log(time, log_level::WARNING, "interrupted by signal; recording the last state")?;
+                    break;
+                }
                 Err(source) => {
                     status = "peer_failed";
                     frames.log(time, log_level::ERROR, &format!("exchange {steps}: {source}"))?;

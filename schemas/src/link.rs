@@ -458,6 +458,7 @@ pub fn validate_run_id(run_id: &str) -> Result<(), LinkError> {
 /// cleaned. For the supervisor after it killed its children; connecting does
 /// the same for every dead iceoryx2 node on its own.
 pub fn cleanup_stale(run_id: Option<&str>) -> usize {
+    set_log_level_from_env_or(LogLevel::Error);
     let prefix = match run_id {
         Some(id) => format!("sgf/{id}/"),
         None => String::from("sgf/"),

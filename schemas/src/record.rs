@@ -120,6 +120,9 @@ impl RecorderBuilder {
     }
 }
 
+/// Longest wall time between chunk flushes of a recording.
+pub const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(2);
+
 fn writer_loop(
     mut writer: mcap::Writer<BufWriter<File>>,
     rx: Receiver<Command>,
@@ -128,7 +131,14 @@ fn writer_loop(
     let mut bytes = 0_u64;
     let werr = |source| RecordError::Write { path: path.clone(), source };
     let mut sequence = 0_u32;
+    let mut last_flush = std::time::Instant::now();
     for cmd in rx {
+        // A process killed outright (SIGKILL) loses only its unfinished
+        // chunk: close one every FLUSH_EVERY of wall time.
+        if last_flush.elapsed() >= FLUSH_EVERY {
+            writer.flush().map_err(werr)?;
+            last_flush = std::time::Instant::now();
+        }
         match cmd {
             Command::Message { channel, log_time, data } => {
                 sequence = sequence.wrapping_add(1);

@@ -72,6 +72,18 @@ pub fn python_with_mcap() -> Option<PathBuf> {
     (installed && ready(&python)).then_some(python)
 }
 
+/// The pid of a process named `name` whose command line mentions `arg`.
+pub fn find_process(name: &str, arg: &Path) -> Option<i32> {
+    let entries = std::fs::read_dir("/proc").ok()?;
+    let needle = arg.to_string_lossy().to_string();
+    entries.flatten().find_map(|e| {
+        let pid: i32 = e.file_name().to_str()?.parse().ok()?;
+        let cmdline = std::fs::read(e.path().join("cmdline")).ok()?;
+        let cmd = String::from_utf8_lossy(&cmdline).replace('\0', " ");
+        (cmd.contains(name) && cmd.contains(&needle)).then_some(pid)
+    })
+}
+
 /// Whether a process named `name` whose command line mentions `arg` is alive.
 pub fn process_running(name: &str, arg: &Path) -> bool {
     let Ok(entries) = std::fs::read_dir("/proc") else { return false };

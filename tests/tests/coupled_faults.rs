@@ -1,0 +1,134 @@
+//! Faults of a coupled run (issue: dead peer, Ctrl-C, wrong run id): the
+//! coupler notices, stops the other process, says which one died and how,
+//! leaves a readable run.mcap and no process or shared memory behind.
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use integration_tests::{binary, find_process, process_running, repo_root, scratch_dir};
+
+const SCENE: &str = "scenes/validation/settling_sphere.toml";
+
+/// The settling sphere with no end, under `coupler`, once both processes
+/// exchange (the DEM's recording exists); stderr captured to a file.
+fn start_long_coupled_run(name: &str) -> (Child, PathBuf) {
+    let out = scratch_dir(name);
+    let log = std::fs::File::create(out.with_extension("log")).unwrap();
+    let child = Command::new(binary("coupler"))
+        .current_dir(repo_root())
+        .args(["run", SCENE, "--quiet", "--set", "output.end_time=100", "--out"])
+        .arg(&out)
+        .stderr(Stdio::from(log))
+        .spawn()
+        .unwrap();
+    let started = Instant::now();
+    while !out.join("dem.mcap").exists() || !out.join("lbm.mcap").exists() {
+        assert!(started.elapsed() < Duration::from_secs(60), "coupled run never started");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // Past the first chunk flush (schemas::record::FLUSH_EVERY = 2 s): a
+    // process killed later loses at most its last 2 s of recording.
+    std::thread::sleep(Duration::from_millis(3500));
+    (child, out)
+}
+
+fn wait_with_timeout(child: &mut Child, limit: Duration) -> std::process::ExitStatus {
+    let started = Instant::now();
+    loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            return st;
+        }
+        assert!(started.elapsed() < limit, "coupler still running {limit:?} after the fault");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Messages in a recording, read as a stream (works on unfinished files too).
+fn topics_in(path: &std::path::Path) -> std::collections::BTreeSet<String> {
+    let bytes = std::fs::read(path).unwrap();
+    mcap::MessageStream::new(&bytes).unwrap().map(|m| m.unwrap().channel.topic.clone()).collect()
+}
+
+fn kill_one_and_check(victim: &str, survivor: &str, name: &str) {
+    let (mut coupler, out) = start_long_coupled_run(name);
+    let pid = find_process(victim, &out).expect("victim process running");
+    // SAFETY: signalling a process this test started (through the coupler).
+    unsafe { libc::kill(pid, libc::SIGKILL) };
+    let status = wait_with_timeout(&mut coupler, Duration::from_secs(30));
+    assert_eq!(status.code(), Some(1), "coupler exit status after {victim} died");
+    let log = std::fs::read_to_string(out.with_extension("log")).unwrap();
+    assert!(
+        log.contains(&format!("coupler: {victim} failed (killed by signal 9 (SIGKILL))")),
+        "the coupler must name the dead process and how it died:\n{log}"
+    );
+    assert!(!process_running(survivor, &out), "{survivor} left running");
+    assert!(!process_running(victim, &out), "{victim} left running");
+    // One readable recording with both processes' topics up to the fault.
+    let topics = topics_in(&out.join("run.mcap"));
+    for t in ["/dem/particles", "/dem/metrics", "/lbm/metrics", "/log"] {
+        assert!(topics.contains(t), "run.mcap lacks {t}: {topics:?}");
+    }
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["status"], "failed");
+}
+
+#[test]
+fn killed_lbm_stops_the_dem_and_is_named() {
+    kill_one_and_check("lbm_proc", "dem_proc", "coupled_lbm_killed");
+}
+
+#[test]
+fn killed_dem_stops_the_lbm_and_is_named() {
+    kill_one_and_check("dem_proc", "lbm_proc", "coupled_dem_killed");
+    // No stale shared memory blocks the next coupled run.
+    let out = scratch_dir("coupled_after_kill");
+    let status = Command::new(binary("coupler"))
+        .current_dir(repo_root())
+        .args(["run", SCENE, "--quiet", "--set", "output.end_time=0.02", "--out"])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success(), "a coupled run after a killed one must start");
+}
+
+/// Ctrl-C: both processes stop at a step boundary, the merged recording is
+/// finished, the summary says `interrupted`, exit status 130.
+#[test]
+fn ctrl_c_stops_both_processes_cleanly() {
+    let (mut coupler, out) = start_long_coupled_run("coupled_interrupted");
+    // SAFETY: signalling the child we spawned.
+    unsafe { libc::kill(coupler.id() as i32, libc::SIGINT) };
+    let status = wait_with_timeout(&mut coupler, Duration::from_secs(30));
+    assert_eq!(status.code(), Some(130));
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["status"], "interrupted");
+    let t = s["sim_time"].as_f64().unwrap();
+    assert!(t > 0.0 && t < 100.0, "{t}");
+    let bytes = std::fs::read(out.join("run.mcap")).unwrap();
+    assert!(mcap::Summary::read(&bytes).unwrap().is_some(), "merged recording finished");
+    assert!(!process_running("dem_proc", &out) && !process_running("lbm_proc", &out));
+}
+
+/// A process started by hand on a run id nobody else uses is refused with a
+/// message naming the run id and the fix, not left hanging.
+#[test]
+fn wrong_run_id_is_refused_with_a_message() {
+    let out = scratch_dir("coupled_wrong_run_id");
+    let output = Command::new(binary("lbm_proc"))
+        .current_dir(repo_root())
+        .args(["run", SCENE, "--run-id", "nobody-here", "--connect-timeout", "1", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(output.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(err.contains("no DEM process answered on run id \"nobody-here\""), "{err}");
+    assert!(err.contains("--run-id nobody-here"), "the message must say how to fix it: {err}");
+    // And a coupled scene started by hand without any run id: status 2 and the two ways to run it.
+    let output = Command::new(binary("dem_proc")).current_dir(repo_root()).args(["run", SCENE]).output().unwrap();
+    assert_eq!(output.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&output.stderr).contains("coupler run"));
+}
