@@ -479,7 +479,9 @@ fn finish_summary(
             Err(e) => eprintln!("coupler: {} is not valid JSON: {e}", path.display()),
         }
     }
-    if parts.len() != solvers.len() && !(failed && !parts.is_empty()) {
+    // A failed run keeps whatever summaries were written; a normal one needs all.
+    let complete = parts.len() == solvers.len();
+    if parts.is_empty() || (!complete && !failed) {
         return None;
     }
     let mut summary = parts[0].2.clone();
