@@ -51,6 +51,8 @@
 //! Lattice cell (i, j, k) has its centre at `origin + (i + ½, j + ½, k + ½) Δx`
 //! (as in [`crate::setup`]). Periodic axes wrap the spheres.
 
+use rayon::prelude::*;
+
 use crate::fluid::{Faces, Fluid, ForcedCell};
 use crate::real::Real;
 use crate::units::Units;
@@ -134,9 +136,14 @@ pub struct Coupling {
     units: Units,
     origin: [f64; 3],
     overlaps: Vec<Overlap>,
-    /// Radix-sort scratch: the other buffer and the digit counts.
+    /// Per sphere: centre in lattice coordinates and ramp radius.
+    placed: Vec<([f64; 3], f64)>,
+    /// Overlaps of each chunk of spheres, reused.
+    chunk_overlaps: Vec<Vec<Overlap>>,
+    /// Radix-sort scratch: the sorted overlaps, (cell, index) keys, digit counts.
     sorted: Vec<Overlap>,
-    counts: Vec<usize>,
+    keys: [Vec<(u32, u32)>; 2],
+    counts: Vec<u32>,
     forced: Vec<ForcedCell>,
     shares: Vec<Share>,
     /// Lattice-unit rigid-body velocity and angular velocity per sphere.
@@ -155,35 +162,74 @@ fn ramp_radius(r: f64) -> f64 {
     x
 }
 
-/// Stable LSD radix sort of `items` by cell index, 16 bits a pass, result in
-/// `out` (~600k overlaps a step in the paper's column: the comparison sort
-/// cost more than covering the cells).
-fn radix_sort_by_cell(items: &mut Vec<Overlap>, out: &mut Vec<Overlap>, counts: &mut Vec<usize>) {
-    const BITS: u32 = 16;
+/// Spheres per parallel covering task.
+const COVER_CHUNK: usize = 256;
+
+/// Appends the cells sphere `index` covers (centre `p` in lattice
+/// coordinates, ramp radius `radius`) in ascending cell order.
+fn cover(index: usize, p: [f64; 3], radius: f64, dims: [usize; 3], faces: [Faces; 3], out: &mut Vec<Overlap>) {
+    let reach = radius + 0.5;
+    let lo: [i64; 3] = std::array::from_fn(|a| (p[a] - reach).ceil() as i64);
+    let hi: [i64; 3] = std::array::from_fn(|a| (p[a] + reach).floor() as i64);
+    // The cell index along one axis, wrapped on periodic axes, None outside walls.
+    let wrap = |a: usize, i: i64| -> Option<usize> {
+        let n = dims[a] as i64;
+        match faces[a] {
+            Faces::Periodic => Some(i.rem_euclid(n) as usize),
+            Faces::Walls => (0..n).contains(&i).then_some(i as usize),
+        }
+    };
+    for k in lo[2]..=hi[2] {
+        let Some(kz) = wrap(2, k) else { continue };
+        for j in lo[1]..=hi[1] {
+            let Some(jy) = wrap(1, j) else { continue };
+            for i in lo[0]..=hi[0] {
+                let Some(ix) = wrap(0, i) else { continue };
+                let r = [i as f64 - p[0], j as f64 - p[1], k as f64 - p[2]];
+                let d = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt() - radius;
+                let eps = (0.5 - d).clamp(0.0, 1.0);
+                if eps > 0.0 {
+                    let cell = (kz * dims[1] + jy) * dims[0] + ix;
+                    out.push(Overlap { cell, sphere: index, eps, r });
+                }
+            }
+        }
+    }
+}
+
+/// Stable LSD radix sort of `items` by cell index, result in `out`: ~600k
+/// overlaps a step in the paper's column, where a comparison sort cost more
+/// than covering the cells. Sorts (cell, index) pairs with 11-bit digits
+/// (the counts stay in L1), then gathers the 48-byte overlaps once.
+fn radix_sort_by_cell(items: &[Overlap], out: &mut Vec<Overlap>, keys: &mut [Vec<(u32, u32)>; 2], counts: &mut Vec<u32>) {
+    const BITS: u32 = 11;
     const BUCKETS: usize = 1 << BITS;
-    let max = items.iter().map(|o| o.cell).max().unwrap_or(0);
-    let passes = if max == 0 { 1 } else { (usize::BITS - max.leading_zeros()).div_ceil(BITS) };
+    let [a, b] = keys;
+    a.clear();
+    a.extend(items.iter().enumerate().map(|(k, o)| (o.cell as u32, k as u32)));
+    let max = a.iter().map(|k| k.0).max().unwrap_or(0);
+    let passes = (u32::BITS - max.leading_zeros()).div_ceil(BITS).max(1);
     for pass in 0..passes {
         let shift = pass * BITS;
         counts.clear();
         counts.resize(BUCKETS + 1, 0);
-        for o in items.iter() {
-            counts[((o.cell >> shift) & (BUCKETS - 1)) + 1] += 1;
+        for k in a.iter() {
+            counts[((k.0 >> shift) as usize & (BUCKETS - 1)) + 1] += 1;
         }
-        for b in 1..=BUCKETS {
-            counts[b] += counts[b - 1];
+        for d in 1..=BUCKETS {
+            counts[d] += counts[d - 1];
         }
-        out.clear();
-        out.resize(items.len(), Overlap { cell: 0, sphere: 0, eps: 0.0, r: [0.0; 3] });
-        for o in items.iter() {
-            let b = (o.cell >> shift) & (BUCKETS - 1);
-            out[counts[b]] = *o;
-            counts[b] += 1;
+        b.clear();
+        b.resize(a.len(), (0, 0));
+        for k in a.iter() {
+            let d = (k.0 >> shift) as usize & (BUCKETS - 1);
+            b[counts[d] as usize] = *k;
+            counts[d] += 1;
         }
-        if pass + 1 < passes {
-            std::mem::swap(items, out);
-        }
+        std::mem::swap(a, b);
     }
+    out.clear();
+    out.extend(a.iter().map(|k| items[k.1 as usize]));
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -200,7 +246,10 @@ impl Coupling {
             units,
             origin,
             overlaps: Vec::new(),
+            placed: Vec::new(),
+            chunk_overlaps: Vec::new(),
             sorted: Vec::new(),
+            keys: [Vec::new(), Vec::new()],
             counts: Vec::new(),
             forced: Vec::new(),
             shares: Vec::new(),
@@ -218,8 +267,8 @@ impl Coupling {
         let dims = fluid.dims();
         let faces = fluid.state().faces;
         let dx = self.units.dx();
-        self.overlaps.clear();
         self.motion.clear();
+        self.placed.clear();
         for (index, s) in spheres.iter().enumerate() {
             let finite = s.position.iter().chain(&s.velocity).chain(&s.angular_velocity).all(|v| v.is_finite());
             if !finite {
@@ -239,36 +288,27 @@ impl Coupling {
                 s.velocity.map(|v| self.units.velocity_to_lattice(v)),
                 s.angular_velocity.map(|w| w * self.units.dt()),
             ));
-            let lo: [i64; 3] = std::array::from_fn(|a| (p[a] - reach).ceil() as i64);
-            let hi: [i64; 3] = std::array::from_fn(|a| (p[a] + reach).floor() as i64);
-            // The cell index along one axis, wrapped on periodic axes, None outside walls.
-            let wrap = |a: usize, i: i64| -> Option<usize> {
-                let n = dims[a] as i64;
-                match faces[a] {
-                    Faces::Periodic => Some(i.rem_euclid(n) as usize),
-                    Faces::Walls => (0..n).contains(&i).then_some(i as usize),
+            self.placed.push((p, radius));
+        }
+        // Covering is independent per sphere: chunks of spheres in parallel,
+        // each into its own reused buffer, concatenated in sphere order.
+        let chunks = spheres.len().div_ceil(COVER_CHUNK);
+        self.chunk_overlaps.resize_with(chunks.max(self.chunk_overlaps.len()), Vec::new);
+        self.chunk_overlaps[..chunks].par_iter_mut().zip(self.placed.par_chunks(COVER_CHUNK)).enumerate().for_each(
+            |(c, (buffer, placed))| {
+                buffer.clear();
+                for (k, &(p, radius)) in placed.iter().enumerate() {
+                    cover(c * COVER_CHUNK + k, p, radius, dims, faces, buffer);
                 }
-            };
-            for k in lo[2]..=hi[2] {
-                let Some(kz) = wrap(2, k) else { continue };
-                for j in lo[1]..=hi[1] {
-                    let Some(jy) = wrap(1, j) else { continue };
-                    for i in lo[0]..=hi[0] {
-                        let Some(ix) = wrap(0, i) else { continue };
-                        let r = [i as f64 - p[0], j as f64 - p[1], k as f64 - p[2]];
-                        let d = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt() - radius;
-                        let eps = (0.5 - d).clamp(0.0, 1.0);
-                        if eps > 0.0 {
-                            let cell = (kz * dims[1] + jy) * dims[0] + ix;
-                            self.overlaps.push(Overlap { cell, sphere: index, eps, r });
-                        }
-                    }
-                }
-            }
+            },
+        );
+        self.overlaps.clear();
+        for buffer in &self.chunk_overlaps[..chunks] {
+            self.overlaps.extend_from_slice(buffer);
         }
         // Spheres were covered in index order, so a stable sort by cell
         // leaves each cell's overlaps in ascending sphere order.
-        radix_sort_by_cell(&mut self.overlaps, &mut self.sorted, &mut self.counts);
+        radix_sort_by_cell(&self.overlaps, &mut self.sorted, &mut self.keys, &mut self.counts);
         std::mem::swap(&mut self.overlaps, &mut self.sorted);
         self.forced.clear();
         self.shares.clear();
