@@ -201,7 +201,12 @@ fn cover(index: usize, p: [f64; 3], radius: f64, dims: [usize; 3], faces: [Faces
 /// overlaps a step in the paper's column, where a comparison sort cost more
 /// than covering the cells. Sorts (cell, index) pairs with 11-bit digits
 /// (the counts stay in L1), then gathers the 48-byte overlaps once.
-fn radix_sort_by_cell(items: &[Overlap], out: &mut Vec<Overlap>, keys: &mut [Vec<(u32, u32)>; 2], counts: &mut Vec<u32>) {
+fn radix_sort_by_cell(
+    items: &[Overlap],
+    out: &mut Vec<Overlap>,
+    keys: &mut [Vec<(u32, u32)>; 2],
+    counts: &mut Vec<u32>,
+) {
     const BITS: u32 = 11;
     const BUCKETS: usize = 1 << BITS;
     let [a, b] = keys;
