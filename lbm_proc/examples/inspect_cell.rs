@@ -1,6 +1,6 @@
 //! Prints the lattice around one cell of the last `/lbm/state` of a
 //! recording: what a watchdog stop looked like. `cargo run --release -p lbm_proc --example
-//! inspect_cell -- run.mcap I J K`.
+//! inspect_cell -- run.mcap I J K` (or `max` for the fastest liquid cell).
 
 use lbm_proc::fluid::flags;
 use lbm_proc::lattice::{E, Q};
@@ -9,7 +9,6 @@ use lbm_proc::run::LbmState;
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let path = &args[1];
-    let c: [usize; 3] = [args[2].parse().unwrap(), args[3].parse().unwrap(), args[4].parse().unwrap()];
     let bytes = std::fs::read(path).unwrap();
     let mut lbm = None;
     for m in mcap::MessageStream::new(&bytes).unwrap() {
@@ -19,6 +18,39 @@ fn main() {
         }
     }
     let (t, s) = lbm.expect("no /lbm/state");
+    // `max` instead of I J K: the liquid cell with the largest speed.
+    let c: [usize; 3] = if args[2] == "max" {
+        let f = &s.fluid;
+        let [nx, ny, nz] = f.dims;
+        let n = nx * ny * nz;
+        let mut best = (0.0, 0);
+        for cell in 0..n {
+            if !flags::is_liquid(f.flags[cell]) {
+                continue;
+            }
+            let (mut rho, mut jm) = (1.0, [0.0f64; 3]);
+            for q in 0..Q {
+                let g = f.populations[q * n + cell] as f64;
+                rho += g;
+                for a in 0..3 {
+                    jm[a] += E[q][a] as f64 * g;
+                }
+            }
+            let u2 = (jm[0] * jm[0] + jm[1] * jm[1] + jm[2] * jm[2]) / (rho * rho);
+            if u2 > best.0 {
+                best = (u2, cell);
+            }
+        }
+        let cell = best.1;
+        println!(
+            "fastest liquid cell {:?}: |u| = {:.4} lattice",
+            [cell % nx, (cell / nx) % ny, cell / (nx * ny)],
+            best.0.sqrt()
+        );
+        [cell % nx, (cell / nx) % ny, cell / (nx * ny)]
+    } else {
+        [args[2].parse().unwrap(), args[3].parse().unwrap(), args[4].parse().unwrap()]
+    };
     println!("LBM state at t = {} s, step {}", t as f64 * 1e-9, s.fluid.step);
     let f = &s.fluid;
     let [nx, ny, nz] = f.dims;

@@ -665,7 +665,7 @@ impl<T: Real> Fluid<T> {
         let mass = SharedOut(self.state.mass.as_mut_ptr(), self.state.mass.len());
         (0..nz).into_par_iter().for_each(|z| {
             let mut buffer = [[T::ZERO; LANES]; Q];
-            let mut accel = [[T::ZERO; LANES]; 3];
+            let mut accel = [[T::ZERO; LANES]; 4];
             for y in 0..ny {
                 kernel.row::<TRT>(y, z, &out, &mass, &applied, &mut buffer, &mut accel);
             }
@@ -748,7 +748,7 @@ impl<T: Real> Kernel<'_, T> {
         mass: &SharedOut<f64>,
         applied: &SharedOut<AppliedForce>,
         f: &mut [[T; LANES]; Q],
-        accel: &mut [[T; LANES]; 3],
+        accel: &mut [[T; LANES]; 4],
     ) {
         let class = self.rows[z * self.ny + y];
         if class & ROW_ANY_LIQUID == 0 {
@@ -834,11 +834,12 @@ impl<T: Real> Kernel<'_, T> {
         lanes: usize,
         applied: &SharedOut<AppliedForce>,
         f: &mut [[T; LANES]; Q],
-        accel: &mut [[T; LANES]; 3],
+        accel: &mut [[T; LANES]; 4],
     ) -> usize {
         for a in 0..3 {
             accel[a] = [self.coef.accel[a]; LANES];
         }
+        accel[3] = [T::ZERO; LANES];
         while k < k_end && self.forced[k].cell < own + n {
             let cell = self.forced[k];
             if flags::is_liquid(self.flags[cell.cell]) {
@@ -869,7 +870,7 @@ impl<T: Real> Kernel<'_, T> {
         cell: &ForcedCell,
         l: usize,
         f: &[[T; LANES]; Q],
-        accel: &mut [[T; LANES]; 3],
+        accel: &mut [[T; LANES]; 4],
     ) -> AppliedForce {
         let fill = if self.flags[cell.cell] == flags::INTERFACE { self.fill[cell.cell].clamp(0.0, 1.0) } else { 1.0 };
         let w = cell.weight * fill;
@@ -887,6 +888,14 @@ impl<T: Real> Kernel<'_, T> {
         for a in 0..3 {
             accel[a][l] = T::from_f64(self.accel[a] + force[a] / rho);
         }
+        // A fully covered cell holds the liquid inside a grain, which only
+        // follows the grain: it relaxes at τ = 1 (row 3 of `accel`), so no
+        // non-equilibrium survives there. At the paper's τ0 = 0.50067 that
+        // non-equilibrium fed a growing pore-scale mode that fluidised a
+        // saturated packing at rest within 10 ms (docs/coupling.md). Mass and
+        // momentum are conserved at any τ, so F_IB and the surface force are
+        // unchanged; partly covered cells (the grain's surface) keep τ.
+        accel[3][l] = T::from_f64(if w >= 1.0 { 1.0 } else { 0.0 });
         // What the cell held after last step's collision (the shift w_i carries no momentum).
         let mut j_left = [0.0; 3];
         for i in 0..Q {
@@ -1021,7 +1030,7 @@ fn collide<T: Real, const TRT: bool, const FORCED: bool>(
     f: &mut [[T; LANES]; Q],
     lanes: usize,
     c: &Coefficients<T>,
-    accel: &[[T; LANES]; 3],
+    accel: &[[T; LANES]; 4],
 ) {
     let k = |x: f64| T::from_f64(x);
     let (half, one, third) = (k(0.5), k(1.0), k(1.0 / 3.0));
@@ -1052,6 +1061,13 @@ fn collide<T: Real, const TRT: bool, const FORCED: bool>(
         let tau = half * (c.tau0 + (c.tau0_sq + c.smag * q.sqrt() * inv_rho).sqrt());
         let wp = one / tau;
         let wm = if TRT { (tau - half) / (half * (tau - half) + c.magic) } else { wp };
+        // Row 3 of a forced chunk's `accel`: 1 where the cell relaxes at τ = 1 instead.
+        let (wp, wm) = if FORCED {
+            let b = accel[3][l];
+            (wp + b * (one - wp), wm + b * (one - wm))
+        } else {
+            (wp, wm)
+        };
         let (kp, km) = (one - half * wp, one - half * wm);
 
         let usq = ux * ux + uy * uy + uz * uz;
