@@ -36,6 +36,26 @@ fn check_reports_the_lattice_of_a_fluid_scene() {
     assert!(text.contains("Mach 0.354") && text.contains("warning      2 sqrt(g H0)"), "{text}");
 }
 
+/// The five saturated columns of Table 1 load, run both processes, and
+/// step the DEM 57 times per LBM step: 8e-5 s / 57 = 1.404e-6 s.
+#[test]
+fn check_reports_the_exchange_of_the_saturated_columns() {
+    for h in ["030", "040", "050", "060", "070"] {
+        let scene = format!("scenes/ceccato2020/sat_h{h}.toml");
+        let out = coupler().args(["check", &scene]).output().unwrap();
+        assert!(out.status.success(), "{scene}: {}", String::from_utf8_lossy(&out.stderr));
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(text.contains("dem_lbm (dem_proc + lbm_proc, coupled over iceoryx2)"), "{scene}: {text}");
+        assert!(
+            text.contains("sequential schedule, 57 DEM steps per LBM step (DEM 1.404e-6 s, LBM 8.000e-5 s)"),
+            "{scene}: {text}"
+        );
+        assert!(text.contains("tau0 = 0.500667"), "{scene}: {text}");
+        // D/dx = 2.5 mm / 0.6 mm.
+        assert!(text.contains("smallest grain diameter 4.17 lattice cells"), "{scene}: {text}");
+    }
+}
+
 #[test]
 fn bad_scene_exits_2_naming_the_key() {
     let out =
