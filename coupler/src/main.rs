@@ -39,6 +39,9 @@ enum Command {
         /// Override a scene value, validated like the file (repeatable): --set output.end_time=0.2
         #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
         set: Vec<String>,
+        /// Run the scene with this method: `--set scene.method=…`, applied before the other --set values.
+        #[arg(long, value_parser = METHODS)]
+        method: Option<String>,
         /// Worker threads per solver process (default: all cores).
         #[arg(long)]
         threads: Option<usize>,
@@ -52,12 +55,23 @@ enum Command {
         scene: PathBuf,
         #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
         set: Vec<String>,
+        /// Check the scene as run with this method: `--set scene.method=…`, applied before the other --set values.
+        #[arg(long, value_parser = METHODS)]
+        method: Option<String>,
     },
     /// Summarise a recording: topics, message counts, time span, and the run summary.
     Inspect {
         /// A run.mcap written by `coupler run`.
         recording: PathBuf,
     },
+}
+
+/// The values of `--method`: the names `scene.method` takes.
+const METHODS: [&str; 4] = ["dem", "lbm", "dem_lbm", "mpm"];
+
+/// `--method M` as the first override, then the `--set` values in order.
+fn overrides(method: Option<String>, set: Vec<String>) -> Vec<String> {
+    method.map(|m| format!("scene.method=\"{m}\"")).into_iter().chain(set).collect()
 }
 
 fn load(scene: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
@@ -70,8 +84,8 @@ fn load(scene: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
-        Command::Run { scene, out, set, threads, quiet } => {
-            let loaded = match load(&scene, &set) {
+        Command::Run { scene, out, set, method, threads, quiet } => {
+            let loaded = match load(&scene, &overrides(method, set)) {
                 Ok(s) => s,
                 Err(code) => return code,
             };
@@ -85,7 +99,7 @@ fn main() -> ExitCode {
             };
             runtime.block_on(supervise::run(loaded, out, threads, quiet))
         }
-        Command::Check { scene, set } => match load(&scene, &set) {
+        Command::Check { scene, set, method } => match load(&scene, &overrides(method, set)) {
             Ok(s) => {
                 check::print(&s);
                 ExitCode::SUCCESS

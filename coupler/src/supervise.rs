@@ -126,6 +126,7 @@ fn solvers_for(method: Method) -> &'static [(&'static str, &'static str)] {
         Method::DemDry => &[("dem_proc", "dem")],
         Method::LbmFluid => &[("lbm_proc", "lbm")],
         Method::DemLbm => &[("dem_proc", "dem"), ("lbm_proc", "lbm")],
+        Method::Mpm => &[("mpm_proc", "mpm")],
     }
 }
 
@@ -519,12 +520,17 @@ fn finish_summary(
 
 fn report(s: &serde_json::Value, out: &Path) {
     let num = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
-    let rate = match (s["throughput"]["particle_steps_per_s"].as_f64(), s["throughput"]["cell_updates_per_s"].as_f64())
-    {
-        (Some(p), _) => format!("{p:.3e} particle-steps/s"),
-        (None, Some(c)) => format!("{:.1} MLUPS", c / 1e6),
-        (None, None) => "no throughput".into(),
-    };
+    let t = &s["throughput"];
+    let mut rates = Vec::new();
+    if let Some(p) = t["particle_steps_per_s"].as_f64() {
+        rates.push(format!("{p:.3e} particle-steps/s"));
+    } else if let Some(c) = t["cell_updates_per_s"].as_f64() {
+        rates.push(format!("{:.1} MLUPS", c / 1e6));
+    }
+    if let Some(p) = t["point_updates_per_s"].as_f64() {
+        rates.push(format!("{p:.3e} point-updates/s"));
+    }
+    let rate = if rates.is_empty() { "no throughput".to_string() } else { rates.join(", ") };
     eprintln!(
         "coupler: {} ({}) after t = {:.4} s = {:.2} t_ref, {} steps in {:.1} s, {rate}",
         s["scene"].as_str().unwrap_or("?"),

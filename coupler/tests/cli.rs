@@ -85,3 +85,104 @@ fn inspect_rejects_a_file_that_is_not_mcap() {
     );
     let _ = std::fs::remove_file(path);
 }
+
+/// `--method mpm` runs the DEM-LBM column as an MPM scene: default [mpm]
+/// (4 mm, 12 points, courant 0.5), n0 = 0.42 from the scene, so
+/// c_u = sqrt((1.346e7 + 2e7/0.42)/1928) = 178.0 m/s and
+/// dt = 0.5 x 0.004 / 178.0 = 1.124e-5 s.
+#[test]
+fn check_method_mpm_prints_the_mpm_time_step() {
+    let out = coupler().args(["check", "--method", "mpm", "scenes/ceccato2020/sat_h060.toml"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("mpm (mpm_proc, two-phase double-point MPM"), "{text}");
+    assert!(text.contains("175 x 30 = 5250 elements"), "{text}");
+    assert!(text.contains("dt 1.124e-5 s = courant 0.5 x 0.004 m / 178.0 m/s (undrained P-wave limits)"), "{text}");
+    // 10 x 15 soil elements x 12 points, saturated throughout.
+    assert!(text.contains("150 elements, 1800 solid points (150 saturated elements, 0 dry)"), "{text}");
+    assert!(!text.contains("grains ") && !text.contains("lattice "), "no DEM or LBM block under mpm: {text}");
+    // --method is applied before --set, so --set wins.
+    let out = coupler()
+        .args(["check", "--method", "mpm", "scenes/ceccato2020/sat_h060.toml", "--set", "scene.method=dem_lbm"])
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&out.stdout).contains("dem_lbm (dem_proc + lbm_proc"));
+}
+
+/// The MPM scene of the paper's column: Table 2's n0 = 0.40 gives the
+/// wave speeds of mpm-2pdp.md §7 (c_u 180, free water 141, dry 93 m/s).
+#[test]
+fn check_reports_the_mpm_column() {
+    let out = coupler().args(["check", "scenes/ceccato2020/mpm_sat_h060.toml"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("undrained P 179.9 m/s, liquid 141.4 m/s, dry P 92.9 m/s"), "{text}");
+    assert!(text.contains("dt 1.111e-5 s"), "{text}");
+    assert!(text.contains("E_oed 1.3462e7 Pa, K0 = nu/(1-nu) = 0.429"), "{text}");
+    // analytic-checks.md: kappa = 7.41e-9 m², K = 0.0727 m/s; Re_p = 1918.
+    assert!(text.contains("kappa(n0) 7.407e-9 m²") && text.contains("conductivity 7.267e-2 m/s"), "{text}");
+    assert!(text.contains("Re_p = D rho_L sqrt(g H0)/mu = 1.918e3"), "{text}");
+    assert!(text.contains("warnings     none"), "{text}");
+    // The warnings of the MPM.
+    let out = coupler()
+        .args([
+            "check",
+            "scenes/mpm_drag_study/drag_s100_d025mm_mu0p001.toml",
+            "--set",
+            "mpm.quadratic_drag=false",
+            "--set",
+            "mpm.points_per_element=3",
+        ])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("the paper finds the quadratic term matters above ~4e4"), "{text}");
+    assert!(text.contains("the paper saw instabilities with 3 points per element"), "{text}");
+    let out = coupler()
+        .args(["check", "scenes/ceccato2020/mpm_sat_h060.toml", "--set", "particles[0].diameter=1e-5"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("an explicit drag would be unstable; mpm_proc integrates it implicitly"), "{text}");
+}
+
+/// `coupler check` accepts every MPM scene shipped.
+#[test]
+fn check_accepts_every_mpm_scene() {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes");
+    let mut scenes = Vec::new();
+    for dir in ["ceccato2020", "mpm_drag_study"] {
+        for e in std::fs::read_dir(format!("{root}/{dir}")).unwrap() {
+            let p = e.unwrap().path();
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            if (name.starts_with("mpm_") || name.starts_with("drag_")) && name.ends_with(".toml") {
+                scenes.push(format!("scenes/{dir}/{name}"));
+            }
+        }
+    }
+    scenes.sort();
+    assert_eq!(scenes.len(), 14, "{scenes:?}");
+    for scene in &scenes {
+        let out = coupler().args(["check", scene]).output().unwrap();
+        assert!(out.status.success(), "{scene}: {}", String::from_utf8_lossy(&out.stderr));
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(text.contains("method       mpm (mpm_proc") && text.contains("time step    dt "), "{scene}: {text}");
+        assert!(text.contains("warnings     none"), "{scene}: {text}");
+    }
+}
+
+#[test]
+fn method_that_contradicts_the_blocks_exits_2() {
+    let out = coupler().args(["check", "--method", "dem", "scenes/ceccato2020/sat_h060.toml"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("scene.method: is \"dem\"") && err.contains("implies \"dem_lbm\""), "{err}");
+    // H0 = 0.03 m is not on the default 4 mm grid: the error says what fits.
+    let out = coupler().args(["run", "--method", "mpm", "scenes/ceccato2020/sat_h030.toml"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("particles[0].packing.region.max[2]") && err.contains("the nearest are 0.028 and 0.032 m"),
+        "{err}"
+    );
+}

@@ -81,6 +81,9 @@ fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode>
 }
 
 fn no_particles(scene: &Scene) -> Option<&'static str> {
+    if scene.method() == schemas::Method::Mpm {
+        return Some("the scene selects the MPM (scene.method = \"mpm\"): run it with `coupler run` or mpm_proc");
+    }
     scene.spec.particles.is_empty().then_some(
         "the scene has no [[particles]] blocks; nothing for the DEM to do (fluid-only scenes run in lbm_proc)",
     )

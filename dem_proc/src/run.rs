@@ -374,6 +374,7 @@ pub fn run(
         throughput: Throughput {
             particle_steps_per_s: Some(particle_steps / wall.max(1e-9)),
             cell_updates_per_s: None,
+            point_updates_per_s: None,
             wall_per_sim_second: wall / world.time.max(1e-12),
         },
         t_ref,
@@ -401,6 +402,7 @@ pub fn run(
         }),
         liquid_front: Vec::new(),
         lbm: None,
+        mpm: None,
         wall_seconds_total: None,
         exchange: hydro.as_ref().map(|h| ExchangeDetails {
             schedule: h.schedule.name().into(),

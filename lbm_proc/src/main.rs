@@ -65,6 +65,9 @@ fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode>
 }
 
 fn no_fluids(scene: &Scene) -> Option<&'static str> {
+    if scene.method() == schemas::Method::Mpm {
+        return Some("the scene selects the MPM (scene.method = \"mpm\"): run it with `coupler run` or mpm_proc");
+    }
     scene
         .spec
         .fluids

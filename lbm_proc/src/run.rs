@@ -292,6 +292,7 @@ pub fn run(
         throughput: Throughput {
             particle_steps_per_s: None,
             cell_updates_per_s: Some(cell_updates / wall.max(1e-9)),
+            point_updates_per_s: None,
             wall_per_sim_second: wall / time.max(1e-12),
         },
         t_ref,
@@ -320,6 +321,7 @@ pub fn run(
             recording_fraction: frames.seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),
         }),
+        mpm: None,
         wall_seconds_total: None,
         exchange: forcing.as_ref().map(|f| ExchangeDetails {
             schedule: scene.spec.coupling.schedule.name().into(),

@@ -1,6 +1,6 @@
 //! Types every process shares: scene files and their validation, the contact
-//! law's closed forms, measures of a collapse, run summaries, and the MCAP
-//! recorder with its topic names.
+//! law's closed forms, the MPM's grid, wave speeds and time step, measures
+//! of a collapse, run summaries, and the MCAP recorder with its topic names.
 
 pub mod contact;
 pub mod error;
@@ -8,6 +8,7 @@ pub mod exchange;
 pub mod link;
 pub mod measures;
 pub mod metrics;
+pub mod mpm;
 pub mod overrides;
 pub mod process;
 pub mod record;

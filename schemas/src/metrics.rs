@@ -63,3 +63,35 @@ pub struct LbmMetrics {
     /// droplets with no liquid neighbour), kg; part of `liquid_mass`.
     pub pending_mass: f64,
 }
+
+/// `/mpm/metrics`, one per recorded frame. Energies and masses are per
+/// metre of out-of-plane width (the MPM is plane strain).
+#[derive(Debug, Clone, Copy, Default, foxglove::Encode)]
+pub struct MpmMetrics {
+    /// Simulated time since the start of the run, s.
+    pub t: f64,
+    /// t / t_ref.
+    pub t_norm: f64,
+    /// Solid front X_f (0.5 % of the solid mass beyond it), m, and (X_f − L0)/L0.
+    pub front_x: f64,
+    pub front_norm: f64,
+    /// Liquid front, m, and normalised.
+    pub liquid_front_x: f64,
+    pub liquid_front_norm: f64,
+    /// Kinetic energy of the solid and of the liquid points, J/m.
+    pub kinetic_energy_solid: f64,
+    pub kinetic_energy_liquid: f64,
+    /// Largest point speed of each phase, m/s.
+    pub max_speed_solid: f64,
+    pub max_speed_liquid: f64,
+    /// Mass fraction of the solid points that are fluidised (n > n_max).
+    pub fluidised_fraction: f64,
+    /// Largest pore pressure, Pa, and mean porosity of the solid points.
+    pub max_pore_pressure: f64,
+    pub mean_porosity: f64,
+    /// Solid and liquid mass, kg/m: constant (points carry fixed masses).
+    pub solid_mass: f64,
+    pub liquid_mass: f64,
+    /// Material-point updates per second since the last frame (both phases).
+    pub point_updates_per_s: f64,
+}

@@ -34,6 +34,10 @@ pub mod topics {
     pub const LBM_SLICE: &str = "/lbm/slice";
     pub const LBM_METRICS: &str = "/lbm/metrics";
     pub const LBM_STATE: &str = "/lbm/state";
+    pub const MPM_SOLID: &str = "/mpm/solid";
+    pub const MPM_LIQUID: &str = "/mpm/liquid";
+    pub const MPM_METRICS: &str = "/mpm/metrics";
+    pub const MPM_STATE: &str = "/mpm/state";
     pub const LOG: &str = "/log";
 }
 

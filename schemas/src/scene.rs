@@ -34,6 +34,10 @@ pub struct SceneSpec {
     pub dem: Option<DemSpec>,
     #[serde(default)]
     pub lbm: Option<LbmSpec>,
+    /// Two-phase double-point MPM numerics and soil model; read when
+    /// `scene.method = "mpm"` (every key has a default, docs/scenes.md).
+    #[serde(default)]
+    pub mpm: Option<MpmSpec>,
     /// DEM–LBM exchange; only read when the scene has both grains and liquid.
     #[serde(default)]
     pub coupling: CouplingSpec,
@@ -50,6 +54,11 @@ pub struct MetaSpec {
     pub name: String,
     #[serde(default)]
     pub description: String,
+    /// Which method runs the scene: `dem`, `lbm`, `dem_lbm` or `mpm`.
+    /// Default: from the blocks (grains only `dem`, liquid only `lbm`, both
+    /// `dem_lbm`); MPM is chosen only by name (`coupler run --method mpm`).
+    #[serde(default)]
+    pub method: Option<Method>,
 }
 
 /// Axis-aligned box holding everything, with gravity and the faces that are walls.
@@ -228,6 +237,211 @@ pub enum Collision {
     Bgk,
     /// Two relaxation times (Ginzburg): walls exactly mid-link with Λ = 3/16.
     Trt,
+}
+
+/// Two-phase double-point MPM (paper §3.2, §4.2; docs/mpm.md). The soil is
+/// the first particle block (its `density`, `diameter` as the grain size D
+/// of Eqs. 8–9, `packing.region` and `packing.porosity` as n0); the liquid
+/// is the fluid blocks (density, viscosity, region). The x–z section of the
+/// domain is simulated in plane strain.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MpmSpec {
+    /// Side of the square background-grid elements, m. Default 0.004.
+    #[serde(default = "default_mpm_element")]
+    pub element_size: f64,
+    /// Material points of each phase per initially filled element, laid on
+    /// a regular a × b sub-grid (a·b = this, a ≥ b as close as possible;
+    /// a along x). Default 12 (4 × 3).
+    #[serde(default = "default_mpm_points")]
+    pub points_per_element: u32,
+    /// `gimp` (uniform GIMP, default: smooth across cell crossings) or
+    /// `linear` (plain bilinear, Anura3D's).
+    #[serde(default)]
+    pub shape_functions: ShapeFunctions,
+    /// Fraction of the CFL step h / c_max taken, c_max the fastest wave
+    /// (undrained P-wave, liquid compression, dry P-wave). Default 0.5.
+    #[serde(default = "default_mpm_courant")]
+    pub courant: f64,
+    /// Skeleton Young's modulus E, Pa. Default 1e7.
+    #[serde(default = "default_mpm_young")]
+    pub young_modulus: f64,
+    /// Skeleton Poisson ratio ν. Default 0.3.
+    #[serde(default = "default_mpm_poisson")]
+    pub poisson_ratio: f64,
+    /// Mohr–Coulomb friction angle φ, degrees. Default 35.
+    #[serde(default = "default_mpm_friction")]
+    pub friction_angle: f64,
+    /// Mohr–Coulomb cohesion c, Pa. Default 0.
+    #[serde(default)]
+    pub cohesion: f64,
+    /// Dilatancy angle ψ of the plastic potential, degrees (ψ ≤ φ). Default 0.
+    #[serde(default)]
+    pub dilatancy_angle: f64,
+    /// Liquid bulk modulus K_L of Eq. 11, Pa. Default 2e7 (the paper's reduced value).
+    #[serde(default = "default_mpm_bulk")]
+    pub liquid_bulk_modulus: f64,
+    /// Liquid tension tolerated before cavitation, Pa (pore pressure is kept
+    /// ≥ −this). Default 0: no tension.
+    #[serde(default)]
+    pub cavitation_threshold: f64,
+    /// Porosity n_max above which the skeleton is fluidised (zero effective
+    /// stress, Beenakker viscosity in the liquid). Default 0.5.
+    #[serde(default = "default_mpm_nmax")]
+    pub max_porosity: f64,
+    /// Local (Cundall) damping coefficient α of the out-of-balance forces. Default 0.02.
+    #[serde(default = "default_mpm_damping")]
+    pub damping: f64,
+    /// Ergun coefficients A and B of Eqs. 8–9. Defaults 150 and 1.75.
+    #[serde(default = "default_ergun_a")]
+    pub ergun_a: f64,
+    #[serde(default = "default_ergun_b")]
+    pub ergun_b: f64,
+    /// Keep the quadratic (Forchheimer) drag term f2 of Eq. 7. Default true.
+    #[serde(default = "default_true")]
+    pub quadratic_drag: bool,
+    /// A liquid point whose interpolated filling ratio is below this is on
+    /// the free surface and has zero pore pressure. Default 0.8.
+    #[serde(default = "default_mpm_fill")]
+    pub free_surface_fill: f64,
+    /// `k0` (default): effective stresses σ'_h = K0 σ'_v with K0 = ν/(1−ν)
+    /// and hydrostatic pore pressure, then the gravity phase; `zero`:
+    /// stress-free start (gravity applied suddenly at t = 0, no gravity phase).
+    #[serde(default)]
+    pub initial_stress: InitialStress,
+    /// Gravity phase before t = 0, gates held: it ends when the fastest
+    /// point is slower than `gravity_phase_rest_speed` (m/s, default 1e-4)
+    /// or after `gravity_phase_max_time` (s, default 0.2), with local
+    /// damping `gravity_phase_damping` (default 0.7).
+    #[serde(default = "default_gravity_phase_time")]
+    pub gravity_phase_max_time: f64,
+    #[serde(default = "default_gravity_phase_damping")]
+    pub gravity_phase_damping: f64,
+    #[serde(default = "default_gravity_phase_rest")]
+    pub gravity_phase_rest_speed: f64,
+    /// Uniform vertical pressure on the top of the soil block from t = 0, Pa
+    /// (a 1D consolidation load). Default 0.
+    #[serde(default)]
+    pub top_load: f64,
+}
+
+impl Default for MpmSpec {
+    fn default() -> Self {
+        toml::from_str("").expect("every [mpm] key has a default")
+    }
+}
+
+impl MpmSpec {
+    /// The sub-grid of the material points of one phase in an initially
+    /// filled element: (a along x, b along z) with a·b =
+    /// `points_per_element`, a ≥ b and a − b as small as possible (12 →
+    /// (4, 3), 8 → (4, 2), 9 → (3, 3)). Validation accepts a count only
+    /// when a ≤ 3b ([`point_grid_of`]); (0, 0) for 0.
+    pub fn point_grid(&self) -> (u32, u32) {
+        point_grid_of(self.points_per_element)
+    }
+}
+
+/// (a, b) with a·b = n, a ≥ b, a − b minimal: b is the largest divisor of n
+/// not above √n. (0, 0) for n = 0.
+pub fn point_grid_of(n: u32) -> (u32, u32) {
+    if n == 0 {
+        return (0, 0);
+    }
+    let mut b = (n as f64).sqrt().floor() as u32;
+    while b * b > n {
+        b -= 1;
+    }
+    while !n.is_multiple_of(b) {
+        b -= 1;
+    }
+    (n / b, b)
+}
+
+/// Whether `n` material points per element make a sub-grid `MpmSpec`
+/// accepts: a·b = n with a ≤ 3b (so no sliver of 5 × 1 or 7 × 1 points).
+pub fn point_count_fits(n: u32) -> bool {
+    let (a, b) = point_grid_of(n);
+    n > 0 && a <= 3 * b
+}
+
+fn default_mpm_element() -> f64 {
+    0.004
+}
+fn default_mpm_points() -> u32 {
+    12
+}
+fn default_mpm_courant() -> f64 {
+    0.5
+}
+fn default_mpm_young() -> f64 {
+    1.0e7
+}
+fn default_mpm_poisson() -> f64 {
+    0.3
+}
+fn default_mpm_friction() -> f64 {
+    35.0
+}
+fn default_mpm_bulk() -> f64 {
+    2.0e7
+}
+fn default_mpm_nmax() -> f64 {
+    0.5
+}
+fn default_mpm_damping() -> f64 {
+    0.02
+}
+fn default_ergun_a() -> f64 {
+    150.0
+}
+fn default_ergun_b() -> f64 {
+    1.75
+}
+fn default_mpm_fill() -> f64 {
+    0.8
+}
+fn default_gravity_phase_time() -> f64 {
+    0.2
+}
+fn default_gravity_phase_damping() -> f64 {
+    0.7
+}
+fn default_gravity_phase_rest() -> f64 {
+    1.0e-4
+}
+
+/// MPM shape functions.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ShapeFunctions {
+    /// Uniform GIMP (Bardenhagen & Kober 2004): each point a square of its
+    /// initial spacing; weights and gradients continuous across cell edges.
+    #[default]
+    Gimp,
+    /// Bilinear nodal functions evaluated at the point (plain MPM).
+    Linear,
+}
+
+impl ShapeFunctions {
+    /// The scene name: `gimp` or `linear`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ShapeFunctions::Gimp => "gimp",
+            ShapeFunctions::Linear => "linear",
+        }
+    }
+}
+
+/// How the MPM soil's stresses start.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InitialStress {
+    /// K0 effective stresses and hydrostatic pore pressure, then a damped gravity phase.
+    #[default]
+    K0,
+    /// No initial stress, no gravity phase.
+    Zero,
 }
 
 /// DEM contact law and numerics (paper Eqs. 1–3, Table 2).
@@ -453,15 +667,19 @@ pub struct Scene {
 }
 
 /// Which solver processes a scene needs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Method {
-    /// Grains only: `dem_proc`.
+    /// Grains only: `dem_proc`. Scene name `dem`.
+    #[serde(rename = "dem")]
     DemDry,
-    /// Liquid only: `lbm_proc`.
+    /// Liquid only: `lbm_proc`. Scene name `lbm`.
+    #[serde(rename = "lbm")]
     LbmFluid,
     /// Grains and liquid: `dem_proc` + `lbm_proc`.
     DemLbm,
+    /// Two-phase double-point MPM (2D plane strain): `mpm_proc`.
+    Mpm,
 }
 
 impl Method {
@@ -470,6 +688,7 @@ impl Method {
             Method::DemDry => "dem",
             Method::LbmFluid => "lbm",
             Method::DemLbm => "dem_lbm",
+            Method::Mpm => "mpm",
         }
     }
 }
@@ -612,13 +831,17 @@ impl Scene {
             v.region(&format!("{key}.region"), &fluid.region, d);
         }
 
-        if !spec.particles.is_empty() && spec.dem.is_none() {
+        // The MPM reads neither [dem] nor [lbm]: one file can drive both
+        // methods, and under `mpm` those tables are ignored, not checked.
+        let method = method_of(&spec);
+        let mpm = method == Method::Mpm;
+        if !mpm && !spec.particles.is_empty() && spec.dem.is_none() {
             v.fail(
                 "dem",
                 "the scene has particle blocks, so it needs a [dem] table with the contact parameters".into(),
             );
         }
-        if let Some(dem) = &spec.dem {
+        if let Some(dem) = spec.dem.as_ref().filter(|_| !mpm) {
             v.positive("dem.normal_stiffness", dem.normal_stiffness);
             v.in_range("dem.tangential_stiffness_ratio", dem.tangential_stiffness_ratio, 0.0, 1.0);
             v.half_open("dem.restitution", dem.restitution, 0.0, 1.0);
@@ -644,13 +867,13 @@ impl Scene {
             v.in_range("dem.neighbour_skin", dem.neighbour_skin, 0.01, 2.0);
         }
 
-        if !spec.fluids.is_empty() && spec.lbm.is_none() {
+        if !mpm && !spec.fluids.is_empty() && spec.lbm.is_none() {
             v.fail(
                 "lbm",
                 "the scene has fluid blocks, so it needs an [lbm] table with at least `spacing` and `time_step`".into(),
             );
         }
-        if let Some(lbm) = &spec.lbm {
+        if let Some(lbm) = spec.lbm.as_ref().filter(|_| !mpm) {
             v.positive("lbm.spacing", lbm.spacing);
             v.positive("lbm.time_step", lbm.time_step);
             v.at_least("lbm.smagorinsky", lbm.smagorinsky, 0.0);
@@ -685,7 +908,7 @@ impl Scene {
             v.fail("coupling.ratio", format!("must be between 1 and 10000 DEM steps per LBM step, got {}", c.ratio));
         }
         if let (Some(dem), Some(lbm)) = (&spec.dem, &spec.lbm) {
-            if !spec.particles.is_empty() && !spec.fluids.is_empty() {
+            if !mpm && !spec.particles.is_empty() && !spec.fluids.is_empty() {
                 if let Some(dt) = dem.time_step {
                     let coupled = lbm.time_step / c.ratio as f64;
                     if (dt - coupled).abs() > 1e-9 * coupled {
@@ -734,31 +957,47 @@ impl Scene {
         if spec.particles.is_empty() && spec.fluids.is_empty() {
             v.fail("", "the scene has neither [[particles]] nor [[fluids]]: nothing to simulate".into());
         }
-        if norm(d.gravity) == 0.0 && spec.particles.iter().any(|p| matches!(p.packing, PackingSpec::Deposit { .. })) {
+        if !mpm
+            && norm(d.gravity) == 0.0
+            && spec.particles.iter().any(|p| matches!(p.packing, PackingSpec::Deposit { .. }))
+        {
             v.fail("domain.gravity", "gravity deposition needs non-zero gravity".into());
+        }
+
+        if let Some(m) = &spec.mpm {
+            check_mpm_values(&mut v, m);
+        }
+        if mpm {
+            check_mpm_scene(&mut v, &spec, &gate_normals);
+        } else if let Some(named) = spec.scene.method {
+            check_method_matches_blocks(&mut v, &spec, named);
         }
 
         v.finish()?;
         Ok(Scene { spec, base_dir: base_dir.to_path_buf(), gate_normals, explicit_spheres })
     }
 
-    /// The processes this scene needs.
+    /// The processes this scene needs: `scene.method` when set, else from
+    /// the blocks (grains only `dem`, liquid only `lbm`, both `dem_lbm`).
     pub fn method(&self) -> Method {
-        match (self.spec.particles.is_empty(), self.spec.fluids.is_empty()) {
-            (false, true) => Method::DemDry,
-            (true, false) => Method::LbmFluid,
-            _ => Method::DemLbm,
-        }
+        method_of(&self.spec)
     }
 
-    /// The DEM table; present whenever the scene has grains (checked at load).
+    /// The DEM table; present whenever the scene has grains and the method
+    /// is not `mpm` (checked at load).
     pub fn dem(&self) -> &DemSpec {
-        self.spec.dem.as_ref().expect("validated: scenes with particles have [dem]")
+        self.spec.dem.as_ref().expect("validated: non-MPM scenes with particles have [dem]")
     }
 
-    /// The LBM table; present whenever the scene has fluids (checked at load).
+    /// The MPM table, its defaults where the scene has none.
+    pub fn mpm(&self) -> MpmSpec {
+        self.spec.mpm.clone().unwrap_or_default()
+    }
+
+    /// The LBM table; present whenever the scene has fluids and the method
+    /// is not `mpm` (checked at load).
     pub fn lbm(&self) -> &LbmSpec {
-        self.spec.lbm.as_ref().expect("validated: scenes with fluids have [lbm]")
+        self.spec.lbm.as_ref().expect("validated: non-MPM scenes with fluids have [lbm]")
     }
 
     /// |g|, m/s².
@@ -793,6 +1032,241 @@ impl Scene {
             }
         }
         toml::to_string_pretty(&spec).expect("scene spec serialises")
+    }
+}
+
+/// `scene.method` when set, else what the blocks imply.
+fn method_of(spec: &SceneSpec) -> Method {
+    spec.scene.method.unwrap_or_else(|| implied_method(spec).unwrap_or(Method::DemLbm))
+}
+
+/// The method the blocks imply (grains only `dem`, liquid only `lbm`, both
+/// `dem_lbm`); None for a scene with neither.
+fn implied_method(spec: &SceneSpec) -> Option<Method> {
+    match (spec.particles.is_empty(), spec.fluids.is_empty()) {
+        (false, true) => Some(Method::DemDry),
+        (true, false) => Some(Method::LbmFluid),
+        (false, false) => Some(Method::DemLbm),
+        (true, true) => None,
+    }
+}
+
+/// An explicit `scene.method` other than `mpm` must be the one the blocks imply.
+fn check_method_matches_blocks(v: &mut Validator, spec: &SceneSpec, named: Method) {
+    let Some(implied) = implied_method(spec) else { return };
+    if implied == named {
+        return;
+    }
+    let has = match implied {
+        Method::DemDry => "[[particles]] and no [[fluids]]",
+        Method::LbmFluid => "[[fluids]] and no [[particles]]",
+        _ => "both [[particles]] and [[fluids]]",
+    };
+    let needs = match named {
+        Method::DemDry => "`dem` needs [[particles]] and no [[fluids]]",
+        Method::LbmFluid => "`lbm` needs [[fluids]] and no [[particles]]",
+        _ => "`dem_lbm` needs both [[particles]] and [[fluids]]",
+    };
+    v.fail(
+        "scene.method",
+        format!(
+            "is \"{}\" but the scene has {has}, which implies \"{}\" ({needs}): set scene.method = \"{}\" (or \"mpm\"), or remove it to infer the method",
+            named.name(),
+            implied.name(),
+            implied.name()
+        ),
+    );
+}
+
+/// Most background-grid elements an MPM scene may have.
+pub const MPM_MAX_ELEMENTS: f64 = 4.0e6;
+
+/// Tolerance, as a fraction of `mpm.element_size`, of a coordinate that must
+/// lie on a grid line.
+const MPM_GRID_TOLERANCE: f64 = 1e-6;
+
+/// A length rounded to 1e-9 m for messages (0.04 rather than 0.04000000000000001).
+fn tidy(x: f64) -> f64 {
+    (x * 1e9).round() / 1e9
+}
+
+/// The `[mpm]` values, whatever the method (the table is checked when present).
+fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
+    v.positive("mpm.element_size", m.element_size);
+    if !point_count_fits(m.points_per_element) {
+        let (a, b) = point_grid_of(m.points_per_element);
+        let fits: Vec<String> = (1..=16).filter(|&n| point_count_fits(n)).map(|n| n.to_string()).collect();
+        let grid = if m.points_per_element == 0 { String::new() } else { format!(" (its closest grid is {a} x {b})") };
+        v.fail(
+            "mpm.points_per_element",
+            format!(
+                "{} points cannot be laid on an a x b sub-grid with a >= b and a <= 3b{grid}; counts that work: {}, … (the paper uses 12 = 4 x 3)",
+                m.points_per_element,
+                fits.join(", ")
+            ),
+        );
+    }
+    v.half_open("mpm.courant", m.courant, 0.0, 1.0);
+    v.positive("mpm.young_modulus", m.young_modulus);
+    v.open_range("mpm.poisson_ratio", m.poisson_ratio, 0.0, 0.5);
+    v.open_range("mpm.friction_angle", m.friction_angle, 0.0, 90.0);
+    v.at_least("mpm.cohesion", m.cohesion, 0.0);
+    if !(m.dilatancy_angle >= 0.0 && m.dilatancy_angle <= m.friction_angle) {
+        v.fail(
+            "mpm.dilatancy_angle",
+            format!(
+                "must be in [0, mpm.friction_angle] = [0, {}] degrees, got {}",
+                m.friction_angle, m.dilatancy_angle
+            ),
+        );
+    }
+    v.positive("mpm.liquid_bulk_modulus", m.liquid_bulk_modulus);
+    v.at_least("mpm.cavitation_threshold", m.cavitation_threshold, 0.0);
+    v.open_range("mpm.max_porosity", m.max_porosity, 0.0, 1.0);
+    v.closed_open("mpm.damping", m.damping, 0.0, 1.0);
+    v.positive("mpm.ergun_a", m.ergun_a);
+    v.positive("mpm.ergun_b", m.ergun_b);
+    v.half_open("mpm.free_surface_fill", m.free_surface_fill, 0.0, 1.0);
+    v.at_least("mpm.gravity_phase_max_time", m.gravity_phase_max_time, 0.0);
+    v.closed_open("mpm.gravity_phase_damping", m.gravity_phase_damping, 0.0, 1.0);
+    v.positive("mpm.gravity_phase_rest_speed", m.gravity_phase_rest_speed);
+    v.at_least("mpm.top_load", m.top_load, 0.0);
+}
+
+/// What a scene must be for the 2D MPM: one soil, one liquid, x–z gravity,
+/// ±x gates, and every boundary on the background grid.
+fn check_mpm_scene(v: &mut Validator, spec: &SceneSpec, gate_normals: &[[f64; 3]]) {
+    let m = spec.mpm.clone().unwrap_or_default();
+    let d = &spec.domain;
+    if spec.particles.len() > 1 {
+        v.fail(
+            "particles",
+            format!(
+                "the MPM simulates one soil: at most one [[particles]] block, got {}; merge them into one block",
+                spec.particles.len()
+            ),
+        );
+    }
+    if spec.fluids.len() > 1 {
+        v.fail(
+            "fluids",
+            format!(
+                "the MPM simulates one liquid body: at most one [[fluids]] block, got {}; merge them into one region",
+                spec.fluids.len()
+            ),
+        );
+    }
+    if let Some(soil) = spec.particles.first() {
+        match &soil.packing {
+            PackingSpec::Deposit { count: Some(_), .. } => v.fail(
+                "particles[0].packing.count",
+                "the MPM fills packing.region as a continuum of initial porosity n0: replace `count` with `porosity` (the lab columns: 0.40)".into(),
+            ),
+            PackingSpec::Deposit { .. } => {}
+            PackingSpec::Explicit { .. } => v.fail(
+                "particles[0].packing.method",
+                "the MPM soil is a region of continuum: use method = \"deposit\" with `region` and `porosity` (n0); explicit grains are for the DEM".into(),
+            ),
+        }
+    }
+    if d.gravity[1] != 0.0 {
+        v.fail(
+            "domain.gravity",
+            format!(
+                "the MPM is 2D in the x–z plane: gravity[1] must be 0, got {:?}; put gravity in x and z, e.g. [0.0, 0.0, -9.81]",
+                d.gravity
+            ),
+        );
+    }
+    for (g, n) in gate_normals.iter().enumerate() {
+        if n[0].abs() <= 1.0 - 1e-9 {
+            v.fail(
+                &format!("gates[{g}].normal"),
+                format!(
+                    "the MPM gate is a vertical line of grid nodes: the normal must be +x or -x ([1, 0, 0] or [-1, 0, 0]), got {:?}",
+                    spec.gates[g].normal
+                ),
+            );
+        }
+    }
+
+    let h = m.element_size;
+    if !(h > 0.0 && h.is_finite()) {
+        return; // reported with the [mpm] values
+    }
+    let axes = [(0usize, "x"), (2usize, "z")];
+    let mut elements = 1.0;
+    for (a, axis) in axes {
+        let extent = d.max[a] - d.min[a];
+        if !(extent > 0.0 && extent.is_finite()) {
+            return; // reported with the domain
+        }
+        let cells = extent / h;
+        elements *= cells.round().max(1.0);
+        if cells < 2.0 - MPM_GRID_TOLERANCE {
+            v.fail(
+                "mpm.element_size",
+                format!(
+                    "{h} m leaves {cells:.3} elements along {axis} (the domain is {} m; at least 2 needed): lower it",
+                    tidy(extent)
+                ),
+            );
+        } else if (cells - cells.round()).abs() > MPM_GRID_TOLERANCE {
+            let (lo, hi) = (cells.floor(), cells.ceil());
+            v.fail(
+                &format!("domain.max[{a}]"),
+                format!(
+                    "the {axis} extent {} m is {cells:.4} elements of mpm.element_size = {h} m, not a whole number: set domain.max[{a}] = {} or {} m, or mpm.element_size = {} m ({lo:.0} elements) or {} m ({hi:.0} elements)",
+                    tidy(extent),
+                    tidy(d.min[a] + lo * h),
+                    tidy(d.min[a] + hi * h),
+                    tidy(extent / lo),
+                    tidy(extent / hi),
+                ),
+            );
+        }
+    }
+    if elements > MPM_MAX_ELEMENTS {
+        v.fail(
+            "mpm.element_size",
+            format!(
+                "{h} m gives {elements:.3e} background elements in the x–z section (at most {MPM_MAX_ELEMENTS:.0e}): raise it or shrink the domain"
+            ),
+        );
+    }
+    // Grid lines run from domain.min every h, whether or not the extent fits.
+    let on_grid = |v: &mut Validator, key: String, a: usize, value: f64, what: &str| {
+        if !value.is_finite() {
+            return;
+        }
+        let k = (value - d.min[a]) / h;
+        if (k - k.round()).abs() > MPM_GRID_TOLERANCE {
+            let axis = if a == 0 { "x" } else { "z" };
+            v.fail(
+                &key,
+                format!(
+                    "{what} {axis} = {} m is {k:.4} elements of mpm.element_size = {h} m from domain.min[{a}]: the MPM needs it on a grid line; the nearest are {} and {} m",
+                    tidy(value),
+                    tidy(d.min[a] + k.floor() * h),
+                    tidy(d.min[a] + k.ceil() * h),
+                ),
+            );
+        }
+    };
+    if let Some(PackingSpec::Deposit { region, .. }) = spec.particles.first().map(|p| &p.packing) {
+        for (a, _) in axes {
+            on_grid(v, format!("particles[0].packing.region.min[{a}]"), a, region.min[a], "the soil edge");
+            on_grid(v, format!("particles[0].packing.region.max[{a}]"), a, region.max[a], "the soil edge");
+        }
+    }
+    for (f, fluid) in spec.fluids.iter().enumerate() {
+        for (a, _) in axes {
+            on_grid(v, format!("fluids[{f}].region.min[{a}]"), a, fluid.region.min[a], "the liquid edge");
+            on_grid(v, format!("fluids[{f}].region.max[{a}]"), a, fluid.region.max[a], "the liquid edge");
+        }
+    }
+    for (g, gate) in spec.gates.iter().enumerate() {
+        on_grid(v, format!("gates[{g}].point[0]"), 0, gate.point[0], "the gate");
     }
 }
 
@@ -860,6 +1334,11 @@ impl Validator {
     fn open_range(&mut self, key: &str, x: f64, lo: f64, hi: f64) {
         if !(x > lo && x < hi) {
             self.fail(key, format!("must be in ({lo}, {hi}), got {x}"));
+        }
+    }
+    fn closed_open(&mut self, key: &str, x: f64, lo: f64, hi: f64) {
+        if !(x >= lo && x < hi) {
+            self.fail(key, format!("must be in [{lo}, {hi}), got {x}"));
         }
     }
     fn half_open(&mut self, key: &str, x: f64, lo: f64, hi: f64) {

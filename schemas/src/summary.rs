@@ -49,6 +49,8 @@ pub struct RunSummary {
     pub dem: Option<DemDetails>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lbm: Option<LbmDetails>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mpm: Option<MpmDetails>,
     /// Wall time of the whole run as the coupler saw it, s (set by the coupler).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub wall_seconds_total: Option<f64>,
@@ -84,6 +86,9 @@ pub struct Throughput {
     /// actually updated (fluid and interface).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cell_updates_per_s: Option<f64>,
+    /// MPM material-point updates per second of wall time, both phases.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub point_updates_per_s: Option<f64>,
     /// Wall seconds per simulated second.
     pub wall_per_sim_second: f64,
 }
@@ -136,6 +141,42 @@ pub struct LbmDetails {
     pub pending_mass_final: f64,
     /// Largest |u|/c_s seen on the recorded frames.
     pub max_mach: f64,
+    /// Fraction of the run's wall time spent handing frames to the recorder.
+    pub recording_fraction: f64,
+    pub threads: usize,
+}
+
+/// The MPM run (plane strain: masses and energies per metre of width).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MpmDetails {
+    /// Elements along x and z, and their side, m.
+    pub elements: [usize; 2],
+    pub element_size: f64,
+    /// `gimp` or `linear`.
+    pub shape_functions: String,
+    pub solid_points: usize,
+    pub liquid_points: usize,
+    /// CFL step, s.
+    pub time_step: f64,
+    /// The gravity phase before t = 0: steps, simulated and wall seconds.
+    pub gravity_phase_steps: u64,
+    pub gravity_phase_time: f64,
+    pub gravity_phase_seconds: f64,
+    /// Top of the soil block, m.
+    pub soil_top: f64,
+    /// Solid and liquid mass at the end, kg/m, and their change over the run
+    /// (zero: points carry fixed masses).
+    pub solid_mass: f64,
+    pub liquid_mass: f64,
+    pub solid_mass_relative_change: f64,
+    pub liquid_mass_relative_change: f64,
+    /// Largest and final kinetic energy of both phases on the recorded frames, J/m.
+    pub max_kinetic_energy: f64,
+    pub final_kinetic_energy: f64,
+    /// Largest fluidised share of the solid mass on the recorded frames.
+    pub fluidised_fraction_max: f64,
+    /// Whether the quadratic drag term was on.
+    pub quadratic_drag: bool,
     /// Fraction of the run's wall time spent handing frames to the recorder.
     pub recording_fraction: f64,
     pub threads: usize,

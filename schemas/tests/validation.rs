@@ -184,3 +184,224 @@ fn resolved_scene_round_trips() {
     assert_eq!(again.spec.output.end_time, 0.3);
     assert_eq!(again.to_toml(), s.to_toml());
 }
+
+// ---------------------------------------------------------------------------
+// MPM scenes
+// ---------------------------------------------------------------------------
+
+/// The saturated lab column for the MPM: no [dem] or [lbm], defaults for [mpm].
+const MPM: &str = r#"
+[scene]
+name = "m"
+method = "mpm"
+[domain]
+min = [0.0, 0.0, 0.0]
+max = [0.7, 0.05, 0.12]
+gravity = [0.0, 0.0, -9.81]
+walls = ["x_min", "x_max", "z_min", "z_max"]
+[[gates]]
+name = "gate"
+point = [0.04, 0.0, 0.0]
+normal = [-1.0, 0.0, 0.0]
+release_time = 0.0
+[[particles]]
+name = "soil"
+density = 2600.0
+diameter = 2.5e-3
+[particles.packing]
+method = "deposit"
+region = { min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }
+porosity = 0.4
+seed = 1
+[[fluids]]
+name = "water"
+density = 1000.0
+viscosity = 1e-3
+region = { min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }
+[output]
+end_time = 0.85
+record_interval = 0.01
+[analysis]
+column_length = 0.04
+column_height = 0.06
+condition = "saturated"
+"#;
+
+#[test]
+fn valid_mpm_scene_loads_without_dem_or_lbm() {
+    let s = load(MPM, &[]).unwrap();
+    assert_eq!(s.method(), Method::Mpm);
+    assert!(s.spec.dem.is_none() && s.spec.lbm.is_none() && s.spec.mpm.is_none());
+    let m = s.mpm();
+    assert_eq!((m.element_size, m.points_per_element, m.point_grid()), (0.004, 12, (4, 3)));
+    assert_eq!((s.mpm_grid().nx, s.mpm_grid().nz), (175, 30));
+    // The resolved scene keeps the method and reloads.
+    let again = load(&s.to_toml(), &[]).unwrap();
+    assert_eq!(again.method(), Method::Mpm);
+    // One phase each: dry soil, water alone.
+    assert!(load(MPM, &["fluids=[]", "analysis.condition=\"dry\""]).is_ok());
+    assert!(load(MPM, &["particles=[]", "analysis.condition=\"liquid\""]).is_ok());
+}
+
+#[test]
+fn mpm_ignores_the_dem_and_lbm_requirements() {
+    // [dem] and [lbm] present but invalid: ignored under mpm.
+    let text = format!("{MPM}\n[dem]\nnormal_stiffness = -1.0\nrestitution = 0.88\nfriction = 0.5\nrolling_friction = 0.05\ntime_step = 1.0\n[lbm]\nspacing = 0.0\ntime_step = 8e-5\n");
+    assert!(load(&text, &[]).is_ok());
+    // Gravity deposition's non-zero gravity is not needed.
+    assert!(load(MPM, &["domain.gravity=[0.0, 0.0, 0.0]"]).is_ok());
+    // The same file as DEM-LBM does check them.
+    let e = load(&text, &["scene.method=\"dem_lbm\""]).unwrap_err();
+    assert!(e.names_key("dem.normal_stiffness") && e.names_key("lbm.spacing"), "{e}");
+}
+
+#[test]
+fn point_grids() {
+    use schemas::scene::{point_count_fits, point_grid_of};
+    let fits: Vec<u32> = (0..=20).filter(|&n| point_count_fits(n)).collect();
+    assert_eq!(fits, [1, 2, 3, 4, 6, 8, 9, 10, 12, 15, 16, 18, 20]);
+    assert_eq!(point_grid_of(12), (4, 3));
+    assert_eq!(point_grid_of(8), (4, 2));
+    assert_eq!(point_grid_of(16), (4, 4));
+    assert_eq!(point_grid_of(7), (7, 1));
+}
+
+/// (override, key the error must name, words the reason must contain)
+const BAD_MPM: &[(&str, &str, &str)] = &[
+    ("mpm.element_size=0", "mpm.element_size", "> 0"),
+    ("mpm.points_per_element=5", "mpm.points_per_element", "counts that work: 1, 2, 3, 4, 6, 8, 9"),
+    ("mpm.points_per_element=7", "mpm.points_per_element", "7 points cannot"),
+    ("mpm.points_per_element=11", "mpm.points_per_element", "11 x 1"),
+    ("mpm.points_per_element=0", "mpm.points_per_element", "0 points"),
+    ("mpm.courant=0", "mpm.courant", "(0, 1]"),
+    ("mpm.courant=1.5", "mpm.courant", "(0, 1]"),
+    ("mpm.young_modulus=0", "mpm.young_modulus", "> 0"),
+    ("mpm.poisson_ratio=0.5", "mpm.poisson_ratio", "(0, 0.5)"),
+    ("mpm.poisson_ratio=0", "mpm.poisson_ratio", "(0, 0.5)"),
+    ("mpm.friction_angle=90", "mpm.friction_angle", "(0, 90)"),
+    ("mpm.friction_angle=0", "mpm.friction_angle", "(0, 90)"),
+    ("mpm.cohesion=-1", "mpm.cohesion", ">= 0"),
+    ("mpm.dilatancy_angle=40", "mpm.dilatancy_angle", "[0, mpm.friction_angle] = [0, 35]"),
+    ("mpm.dilatancy_angle=-1", "mpm.dilatancy_angle", "[0, mpm.friction_angle]"),
+    ("mpm.liquid_bulk_modulus=0", "mpm.liquid_bulk_modulus", "> 0"),
+    ("mpm.cavitation_threshold=-1", "mpm.cavitation_threshold", ">= 0"),
+    ("mpm.max_porosity=1", "mpm.max_porosity", "(0, 1)"),
+    ("mpm.damping=1", "mpm.damping", "[0, 1)"),
+    ("mpm.damping=-0.1", "mpm.damping", "[0, 1)"),
+    ("mpm.ergun_a=0", "mpm.ergun_a", "> 0"),
+    ("mpm.ergun_b=-1", "mpm.ergun_b", "> 0"),
+    ("mpm.free_surface_fill=0", "mpm.free_surface_fill", "(0, 1]"),
+    ("mpm.gravity_phase_max_time=-1", "mpm.gravity_phase_max_time", ">= 0"),
+    ("mpm.gravity_phase_damping=1", "mpm.gravity_phase_damping", "[0, 1)"),
+    ("mpm.gravity_phase_rest_speed=0", "mpm.gravity_phase_rest_speed", "> 0"),
+    ("mpm.top_load=-5", "mpm.top_load", ">= 0"),
+    ("mpm.shape_functions=\"cpdi\"", "mpm.shape_functions", "unknown variant"),
+    ("mpm.initial_stress=\"k1\"", "mpm.initial_stress", "unknown variant"),
+    ("mpm.elemnt_size=0.004", "mpm.elemnt_size", "unknown field"),
+    // The scene as the MPM sees it.
+    ("gates[0].normal=[0.0, 0.0, 1.0]", "gates[0].normal", "+x or -x"),
+    ("gates[0].normal=[1.0, 0.0, 0.1]", "gates[0].normal", "vertical line of grid nodes"),
+    ("domain.gravity=[0.0, -9.81, 0.0]", "domain.gravity", "gravity[1] must be 0"),
+    (
+        "domain.max=[0.703, 0.05, 0.12]",
+        "domain.max[0]",
+        "set domain.max[0] = 0.7 or 0.704 m, or mpm.element_size = 0.004017143 m (175 elements) or 0.003994318 m (176 elements)",
+    ),
+    ("domain.max=[0.7, 0.05, 0.121]", "domain.max[2]", "z extent 0.121 m"),
+    ("mpm.element_size=0.1", "mpm.element_size", "elements along z"),
+    ("mpm.element_size=1e-4", "mpm.element_size", "at most 4e6"),
+    (
+        "particles[0].packing.region.max=[0.04, 0.05, 0.061]",
+        "particles[0].packing.region.max[2]",
+        "the nearest are 0.06 and 0.064 m",
+    ),
+    ("particles[0].packing.region.min=[0.002, 0.0, 0.0]", "particles[0].packing.region.min[0]", "grid line"),
+    ("fluids[0].region.max=[0.042, 0.05, 0.06]", "fluids[0].region.max[0]", "the liquid edge x = 0.042 m"),
+    ("gates[0].point=[0.041, 0.0, 0.0]", "gates[0].point[0]", "the gate x = 0.041 m"),
+];
+
+#[test]
+fn bad_mpm_values_name_their_key() {
+    for (set, key, reason) in BAD_MPM {
+        let e = load(MPM, &[set]).expect_err(set);
+        assert!(e.names_key(key), "{set}: error does not name {key}: {e}");
+        assert!(e.to_string().contains(reason), "{set}: reason should mention {reason:?}: {e}");
+    }
+    // The [mpm] values are checked whenever the table is present, whatever the method.
+    let e = load(VALID, &["mpm.courant=2"]).unwrap_err();
+    assert!(e.names_key("mpm.courant"), "{e}");
+    // ... but the grid only under mpm.
+    assert!(load(VALID, &["mpm.element_size=0.0033"]).is_ok());
+    // A grid that fits the domain but not the gate and the column length.
+    let e = load(MPM, &["domain.max=[0.72, 0.05, 0.12]", "mpm.element_size=0.012"]).unwrap_err();
+    assert!(e.names_key("gates[0].point[0]") && e.to_string().contains("the nearest are 0.036 and 0.048 m"), "{e}");
+    assert!(e.names_key("particles[0].packing.region.max[0]") && e.names_key("fluids[0].region.max[0]"), "{e}");
+    assert!(!e.names_key("particles[0].packing.region.max[2]"), "0.06 m is 5 elements: {e}");
+}
+
+#[test]
+fn mpm_takes_one_soil_and_one_liquid() {
+    let soil = MPM.split("[[particles]]").nth(1).unwrap().split("[[fluids]]").next().unwrap();
+    let two_soils = MPM.replacen("[[fluids]]", &format!("[[particles]]{soil}[[fluids]]"), 1);
+    let e = load(&two_soils, &[]).unwrap_err();
+    assert!(e.names_key("particles") && e.to_string().contains("at most one [[particles]] block, got 2"), "{e}");
+    let water = MPM.split("[[fluids]]").nth(1).unwrap().split("[output]").next().unwrap();
+    let two_waters = MPM.replacen("[output]", &format!("[[fluids]]{water}[output]"), 1);
+    let e = load(&two_waters, &[]).unwrap_err();
+    assert!(e.names_key("fluids") && e.to_string().contains("at most one [[fluids]] block, got 2"), "{e}");
+    // Neither block.
+    let e = load(MPM, &["particles=[]", "fluids=[]", "analysis.condition=\"dry\""]).unwrap_err();
+    assert!(e.to_string().contains("nothing to simulate"), "{e}");
+    // `count` instead of `porosity`.
+    let counted = MPM.replace("porosity = 0.4", "count = 5000");
+    let e = load(&counted, &[]).unwrap_err();
+    assert!(
+        e.names_key("particles[0].packing.count") && e.to_string().contains("replace `count` with `porosity`"),
+        "{e}"
+    );
+    // Explicit grains.
+    let explicit = MPM.replace(
+        "method = \"deposit\"\nregion = { min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }\nporosity = 0.4\nseed = 1",
+        "method = \"explicit\"\nspheres = [[0.01, 0.01, 0.01, 2.5e-3]]",
+    );
+    let e = load(&explicit, &[]).unwrap_err();
+    assert!(e.names_key("particles[0].packing.method") && e.to_string().contains("method = \"deposit\""), "{e}");
+}
+
+#[test]
+fn every_mpm_problem_is_reported_at_once() {
+    let e = load(MPM, &["mpm.courant=0", "gates[0].point=[0.041, 0.0, 0.0]", "domain.gravity=[0.0, 1.0, -9.81]"])
+        .unwrap_err();
+    assert!(e.names_key("mpm.courant") && e.names_key("gates[0].point[0]") && e.names_key("domain.gravity"), "{e}");
+}
+
+#[test]
+fn explicit_method_must_match_the_blocks() {
+    for (set, implied) in [("scene.method=\"lbm\"", "\"dem\""), ("scene.method=\"dem_lbm\"", "\"dem\"")] {
+        let e = load(VALID, &[set]).expect_err(set);
+        assert!(e.names_key("scene.method") && e.to_string().contains(&format!("implies {implied}")), "{set}: {e}");
+    }
+    let sat = format!("{VALID}\n{WATER}");
+    let e = load(&sat, &["scene.method=\"dem\""]).unwrap_err();
+    assert!(e.names_key("scene.method") && e.to_string().contains("implies \"dem_lbm\""), "{e}");
+    // Named as the blocks imply: fine.
+    assert_eq!(load(VALID, &["scene.method=\"dem\""]).unwrap().method(), Method::DemDry);
+    assert_eq!(load(&sat, &["scene.method=dem_lbm"]).unwrap().method(), Method::DemLbm);
+    let e = load(VALID, &["scene.method=\"sph\""]).unwrap_err();
+    assert!(e.names_key("scene.method") && e.to_string().contains("unknown variant"), "{e}");
+}
+
+#[test]
+fn saturated_column_runs_as_mpm() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let path = root.join("scenes/ceccato2020/sat_h060.toml");
+    let dem_lbm = Scene::load(&path, &[]).unwrap();
+    assert_eq!(dem_lbm.method(), Method::DemLbm);
+    let s = Scene::load(&path, &["scene.method=mpm".to_string()]).unwrap();
+    assert_eq!(s.method(), Method::Mpm);
+    // Default 4 mm grid: 175 x 30; n0 = 0.42 from the DEM target porosity.
+    assert_eq!((s.mpm_grid().nx, s.mpm_grid().nz), (175, 30));
+    assert_eq!(s.mpm_porosity(), Some(0.42));
+    let t = s.mpm_time_step();
+    assert!((t.dt - 1.1237e-5).abs() < 1e-8, "{t:?}");
+}

@@ -1,0 +1,225 @@
+//! The background grid: square elements of side h over the x–z section of
+//! the domain, one ring of ghost nodes outside it, and the per-point
+//! stencils of the shape functions (docs/mpm.md, "Shape functions").
+
+use schemas::scene::ShapeFunctions;
+
+/// Ghost node rings on each side: every GIMP stencil (base − 1 .. base + 1
+/// around the nearest node) stays inside the stored grid.
+pub const GHOST: usize = 1;
+
+/// Geometry of the grid. Node (i, k), i along x and k along z, counted from
+/// the box corner, is stored at `(k + GHOST) * row + (i + GHOST)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grid {
+    /// Box corner (x, z), m.
+    pub origin: [f64; 2],
+    /// Element side h, m.
+    pub h: f64,
+    /// Elements along x and z.
+    pub elements: [usize; 2],
+    pub shape: ShapeFunctions,
+}
+
+impl Grid {
+    /// Stored nodes along x (a row) and z.
+    pub fn node_dims(&self) -> [usize; 2] {
+        [self.elements[0] + 1 + 2 * GHOST, self.elements[1] + 1 + 2 * GHOST]
+    }
+
+    pub fn node_count(&self) -> usize {
+        let [a, b] = self.node_dims();
+        a * b
+    }
+
+    pub fn element_count(&self) -> usize {
+        self.elements[0] * self.elements[1]
+    }
+
+    /// Position of stored node (column, row) (ghost offset included), m.
+    pub fn node_position(&self, column: usize, row: usize) -> [f64; 2] {
+        [
+            self.origin[0] + (column as f64 - GHOST as f64) * self.h,
+            self.origin[1] + (row as f64 - GHOST as f64) * self.h,
+        ]
+    }
+
+    /// Upper corner of the box, m.
+    pub fn far_corner(&self) -> [f64; 2] {
+        [self.origin[0] + self.elements[0] as f64 * self.h, self.origin[1] + self.elements[1] as f64 * self.h]
+    }
+
+    /// The element holding `x` (clamped into the box): index e = k·nx + i.
+    pub fn element_of(&self, x: [f64; 2]) -> usize {
+        let i = (((x[0] - self.origin[0]) / self.h).floor().max(0.0) as usize).min(self.elements[0] - 1);
+        let k = (((x[1] - self.origin[1]) / self.h).floor().max(0.0) as usize).min(self.elements[1] - 1);
+        k * self.elements[0] + i
+    }
+
+    /// Stored index of the lower-left corner node of element e.
+    pub fn element_corner(&self, e: usize) -> usize {
+        let (i, k) = (e % self.elements[0], e / self.elements[0]);
+        (k + GHOST) * self.node_dims()[0] + i + GHOST
+    }
+
+    /// Shape-function stencil of a point at `x` with GIMP half-widths `half`, m.
+    pub fn stencil(&self, x: [f64; 2], half: [f64; 2]) -> Stencil {
+        let (bx, wx, gx) = self.axis(x[0], self.origin[0], self.elements[0], half[0]);
+        let (bz, wz, gz) = self.axis(x[1], self.origin[1], self.elements[1], half[1]);
+        Stencil { base: (bz * self.node_dims()[0] + bx) as u32, wx, gx, wz, gz }
+    }
+
+    /// One axis: stored index of the first of three nodes, their weights and derivatives.
+    fn axis(&self, x: f64, x0: f64, elements: usize, half: f64) -> (usize, [f64; 3], [f64; 3]) {
+        let h = self.h;
+        let xi = (x - x0) / h;
+        let mut w = [0.0; 3];
+        let mut g = [0.0; 3];
+        match self.shape {
+            ShapeFunctions::Gimp => {
+                let nearest = (xi.round().max(0.0) as usize).min(elements);
+                // Stored index of node nearest − 1 (ghost offset GHOST = 1).
+                let base = nearest + GHOST - 1;
+                for j in 0..3 {
+                    let node_x = x0 + (nearest as f64 + j as f64 - 1.0) * h;
+                    let (s, ds) = gimp(x - node_x, h, half);
+                    w[j] = s;
+                    g[j] = ds;
+                }
+                (base, w, g)
+            }
+            ShapeFunctions::Linear => {
+                let left = (xi.floor().max(0.0) as usize).min(elements - 1);
+                let t = (x - (x0 + left as f64 * h)) / h;
+                w[0] = 1.0 - t;
+                w[1] = t;
+                g[0] = -1.0 / h;
+                g[1] = 1.0 / h;
+                (left + GHOST, w, g)
+            }
+        }
+    }
+}
+
+/// Uniform GIMP weight and derivative at distance d from a node (element
+/// side h, point half-width l < h/2), Bardenhagen & Kober 2004: the hat
+/// function averaged over the point's extent.
+pub fn gimp(d: f64, h: f64, l: f64) -> (f64, f64) {
+    let a = d.abs();
+    let sign = if d < 0.0 { -1.0 } else { 1.0 };
+    if a < l {
+        (1.0 - (d * d + l * l) / (2.0 * h * l), -d / (h * l))
+    } else if a < h - l {
+        (1.0 - a / h, -sign / h)
+    } else if a < h + l {
+        let r = h + l - a;
+        (r * r / (4.0 * h * l), -sign * r / (2.0 * h * l))
+    } else {
+        (0.0, 0.0)
+    }
+}
+
+/// Three nodes per axis from `base` (stored index of the lowest node), with
+/// weights w and derivatives g: N = wx[j]·wz[l], ∇N = (gx[j]·wz[l], wx[j]·gz[l])
+/// for node base + l·row + j. Linear shapes use the first two of each.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Stencil {
+    pub base: u32,
+    pub wx: [f64; 3],
+    pub gx: [f64; 3],
+    pub wz: [f64; 3],
+    pub gz: [f64; 3],
+}
+
+impl Stencil {
+    /// Calls `f(node, N, ∇N)` for the nine (or four) nodes.
+    #[inline(always)]
+    pub fn for_each(&self, row: usize, mut f: impl FnMut(usize, f64, [f64; 2])) {
+        for l in 0..3 {
+            for j in 0..3 {
+                let n = self.wx[j] * self.wz[l];
+                let grad = [self.gx[j] * self.wz[l], self.wx[j] * self.gz[l]];
+                f(self.base as usize + l * row + j, n, grad);
+            }
+        }
+    }
+
+    /// Σ N_I a_I over the stencil of a nodal field of 2-vectors.
+    #[inline(always)]
+    pub fn interpolate(&self, row: usize, field: impl Fn(usize) -> [f64; 2]) -> [f64; 2] {
+        let mut out = [0.0; 2];
+        self.for_each(row, |node, n, _| {
+            let a = field(node);
+            out[0] += n * a[0];
+            out[1] += n * a[1];
+        });
+        out
+    }
+
+    /// Σ ∇N_I ⊗ u_I symmetrised: (ε_xx, ε_zz, γ_xz = 2ε_xz) of a nodal displacement field.
+    #[inline(always)]
+    pub fn strain(&self, row: usize, field: impl Fn(usize) -> [f64; 2]) -> [f64; 3] {
+        let mut e = [0.0; 3];
+        self.for_each(row, |node, _, g| {
+            let u = field(node);
+            e[0] += g[0] * u[0];
+            e[1] += g[1] * u[1];
+            e[2] += g[1] * u[0] + g[0] * u[1];
+        });
+        e
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(shape: ShapeFunctions) -> Grid {
+        Grid { origin: [0.0, 0.0], h: 0.01, elements: [10, 6], shape }
+    }
+
+    #[test]
+    fn weights_partition_unity_and_gradients_sum_to_zero() {
+        for shape in [ShapeFunctions::Gimp, ShapeFunctions::Linear] {
+            let g = grid(shape);
+            for s in 0..500 {
+                let x = [0.0025 + 0.095 * (s as f64 * 0.618).fract(), 0.0025 + 0.055 * (s as f64 * 0.414).fract()];
+                let st = g.stencil(x, [0.00125, 0.0016]);
+                let (mut sum, mut gs, mut first) = (0.0, [0.0; 2], [0.0; 2]);
+                st.for_each(g.node_dims()[0], |node, n, grad| {
+                    let row = g.node_dims()[0];
+                    let p = g.node_position(node % row, node / row);
+                    sum += n;
+                    gs[0] += grad[0];
+                    gs[1] += grad[1];
+                    // Linear completeness: Σ N_I x_I = x.
+                    first[0] += n * p[0];
+                    first[1] += n * p[1];
+                });
+                assert!((sum - 1.0).abs() < 1e-13, "{shape:?} sum {sum}");
+                assert!(gs[0].abs() < 1e-10 && gs[1].abs() < 1e-10, "{shape:?} {gs:?}");
+                assert!(
+                    (first[0] - x[0]).abs() < 1e-14 && (first[1] - x[1]).abs() < 1e-14,
+                    "{shape:?} {first:?} {x:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn gimp_is_continuous_across_element_edges() {
+        let (h, l) = (0.01, 0.00125);
+        for d0 in [l, h - l, h + l] {
+            let (a, da) = gimp(d0 - 1e-12, h, l);
+            let (b, db) = gimp(d0 + 1e-12, h, l);
+            assert!((a - b).abs() < 1e-9 && (da - db).abs() < 1e-6, "at {d0}: {a} {b} {da} {db}");
+        }
+        // The gradient of a linear field is exact: Σ ∇N_I x_I = 1.
+        let g = grid(ShapeFunctions::Gimp);
+        let st = g.stencil([0.0437, 0.021], [l, l]);
+        let row = g.node_dims()[0];
+        let mut d = 0.0;
+        st.for_each(row, |node, _, grad| d += grad[0] * g.node_position(node % row, node / row)[0]);
+        assert!((d - 1.0).abs() < 1e-12, "{d}");
+    }
+}

@@ -1,0 +1,540 @@
+//! A whole MPM run: the scene on the grid, the gravity phase, gates
+//! released on time, the collapse to rest or the end time, recorded to
+//! MCAP and summarised.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use foxglove::schemas::{Log, PointCloud};
+use serde::{Deserialize, Serialize};
+
+use schemas::measures::{deposit_profile, front_position, FrontSample};
+use schemas::metrics::MpmMetrics;
+use schemas::process::RunOptions;
+use schemas::record::{
+    f32_field, identity_pose, log_entry, log_level, timestamp, topics, ChannelId, RecordError, Recorder,
+    RecorderBuilder,
+};
+use schemas::scene::{InitialStress, Scene};
+use schemas::summary::{MpmDetails, RunSummary, Throughput};
+
+use crate::setup::{build, MpmSetup, SetupError};
+use crate::solver::{Mpm, MpmState, PointSet};
+
+/// Version of the `/mpm/state` bincode layout.
+pub const STATE_VERSION: u32 = 1;
+
+/// Full state at a frame (`/mpm/state`): enough to continue the run bit for bit.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct MpmStateRecord {
+    pub version: u32,
+    pub state: MpmState,
+}
+
+impl MpmStateRecord {
+    pub fn encode(&self) -> Vec<u8> {
+        bincode::serde::encode_to_vec(self, bincode::config::standard()).expect("state encodes")
+    }
+    pub fn decode(bytes: &[u8]) -> Result<Self, String> {
+        bincode::serde::decode_from_slice(bytes, bincode::config::standard()).map(|(s, _)| s).map_err(|e| e.to_string())
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Setup(#[from] SetupError),
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    #[error("the run became unstable at t = {t:.5} s: {what}. Lower mpm.courant, raise mpm.points_per_element or mpm.damping; the recording up to the last frame is kept")]
+    Unstable { t: f64, what: String },
+    #[error("cannot write {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+}
+
+/// How the run reports progress to whoever launched it.
+pub trait Progress {
+    fn gravity_phase(&mut self, t: f64, t_max: f64);
+    fn collapse(&mut self, t: f64, t_end: f64, steps: u64);
+    fn log(&mut self, message: &str);
+}
+
+/// Where `mpm_proc` writes its recording and its summary.
+pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
+    (out_dir.join("mpm.mcap"), out_dir.join("mpm_summary.json"))
+}
+
+/// What the gravity phase did.
+#[derive(Debug, Clone, Copy)]
+pub struct GravityPhase {
+    pub steps: u64,
+    pub time: f64,
+    /// Fastest point at its end, m/s.
+    pub max_speed: f64,
+    pub wall_seconds: f64,
+}
+
+/// Runs the damped gravity phase with the gates held (docs/mpm.md), then
+/// zeroes the velocities and the clock.
+pub fn gravity_phase(scene: &Scene, mpm: &mut Mpm, stop: &AtomicBool, progress: &mut dyn Progress) -> GravityPhase {
+    let spec = scene.mpm();
+    let started = Instant::now();
+    let mut phase = GravityPhase { steps: 0, time: 0.0, max_speed: 0.0, wall_seconds: 0.0 };
+    if spec.initial_stress != InitialStress::K0 || spec.gravity_phase_max_time <= 0.0 {
+        return phase;
+    }
+    let damping = mpm.params.damping;
+    mpm.params.damping = spec.gravity_phase_damping;
+    let check_every = ((0.002 / mpm.params.dt).round() as u64).max(1);
+    let mut last_progress = Instant::now();
+    loop {
+        mpm.step();
+        phase.steps += 1;
+        if phase.steps.is_multiple_of(check_every) {
+            let speed = mpm.state.solid.set.max_speed().max(mpm.state.liquid.set.max_speed());
+            phase.max_speed = speed;
+
+            if speed < spec.gravity_phase_rest_speed || mpm.state.time >= spec.gravity_phase_max_time {
+                break;
+            }
+            if stop.load(Ordering::Relaxed) {
+                break;
+            }
+            if last_progress.elapsed().as_secs_f64() > 0.5 {
+                progress.gravity_phase(mpm.state.time, spec.gravity_phase_max_time);
+                last_progress = Instant::now();
+            }
+        }
+    }
+    phase.time = mpm.state.time;
+    mpm.params.damping = damping;
+    for set in [&mut mpm.state.solid.set, &mut mpm.state.liquid.set] {
+        set.v.iter_mut().for_each(|v| *v = [0.0; 2]);
+    }
+    mpm.state.time = 0.0;
+    mpm.state.steps = 0;
+    phase.wall_seconds = started.elapsed().as_secs_f64();
+    phase
+}
+
+struct Channels {
+    solid: ChannelId,
+    liquid: ChannelId,
+    metrics: ChannelId,
+    state: ChannelId,
+    log: ChannelId,
+}
+
+struct Frames {
+    recorder: Option<Recorder>,
+    channels: Option<Channels>,
+    seconds: f64,
+    scratch: Vec<(f64, f64)>,
+    front: Vec<FrontSample>,
+    liquid_front: Vec<FrontSample>,
+    /// Largest kinetic energy seen, J/m.
+    max_kinetic_energy: f64,
+    max_fluidised: f64,
+}
+
+impl Frames {
+    fn log(&mut self, t: f64, level: i32, message: &str) -> Result<(), RecordError> {
+        if let (Some(r), Some(c)) = (self.recorder.as_mut(), self.channels.as_ref()) {
+            r.log(c.log, t, &log_entry(t, level, "mpm_proc", message))?;
+        }
+        Ok(())
+    }
+}
+
+/// Measures of one frame.
+struct Measures {
+    front: f64,
+    liquid_front: f64,
+    fluidised_fraction: f64,
+    moving_fraction: f64,
+}
+
+fn measure(mpm: &Mpm, fraction: f64, rest_speed: f64, scratch: &mut Vec<(f64, f64)>) -> Measures {
+    let s = &mpm.state.solid;
+    let l = &mpm.state.liquid;
+    let front = front_position(s.set.x.iter().zip(&s.set.mass).map(|(x, &m)| (x[0], m)), fraction, scratch);
+    let liquid_front = front_position(l.set.x.iter().zip(&l.set.mass).map(|(x, &m)| (x[0], m)), fraction, scratch);
+    let total = s.set.total_mass().max(f64::MIN_POSITIVE);
+    let fluidised: f64 = s.fluidised.iter().zip(&s.set.mass).filter(|(f, _)| **f).map(|(_, m)| m).sum();
+    let moving: f64 = s
+        .set
+        .v
+        .iter()
+        .zip(&s.set.mass)
+        .filter(|(v, _)| v[0] * v[0] + v[1] * v[1] > rest_speed * rest_speed)
+        .map(|(_, m)| m)
+        .sum();
+    let moving_fraction = if s.set.is_empty() {
+        let lm = l.set.total_mass().max(f64::MIN_POSITIVE);
+        l.set
+            .v
+            .iter()
+            .zip(&l.set.mass)
+            .filter(|(v, _)| v[0] * v[0] + v[1] * v[1] > rest_speed * rest_speed)
+            .map(|(_, m)| m)
+            .sum::<f64>()
+            / lm
+    } else {
+        moving / total
+    };
+    Measures { front, liquid_front, fluidised_fraction: fluidised / total, moving_fraction }
+}
+
+/// Runs the scene; `stop` is polled every step and ends the run at a step
+/// boundary with status `interrupted` and a complete recording.
+pub fn run(
+    scene: &Scene,
+    opts: &RunOptions,
+    stop: &AtomicBool,
+    progress: &mut dyn Progress,
+) -> Result<RunSummary, RunError> {
+    let MpmSetup { mut mpm, gates, porosity_initial, soil_top, notes } = build(scene)?;
+    for n in &notes {
+        progress.log(n);
+    }
+    let t_ref = scene.reference_time();
+    let out = &scene.spec.output;
+    let an = &scene.spec.analysis;
+    let x0 = scene.spec.domain.min[0];
+    let l0 = an.column_length;
+
+    std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
+    let (mcap_path, summary_path) = output_paths(&opts.out_dir);
+    let mut frames = Frames {
+        recorder: None,
+        channels: None,
+        seconds: 0.0,
+        scratch: Vec::new(),
+        front: Vec::new(),
+        liquid_front: Vec::new(),
+        max_kinetic_energy: 0.0,
+        max_fluidised: 0.0,
+    };
+    if opts.record {
+        let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
+        let meta = BTreeMap::from([(
+            "encoding".to_string(),
+            format!("bincode 2 (serde, standard config) of mpm_proc::run::MpmStateRecord version {STATE_VERSION}; see docs/recording.md"),
+        )]);
+        let channels = Channels {
+            solid: b.channel::<PointCloud>(topics::MPM_SOLID)?,
+            liquid: b.channel::<PointCloud>(topics::MPM_LIQUID)?,
+            metrics: b.channel::<MpmMetrics>(topics::MPM_METRICS)?,
+            state: b.raw_channel(topics::MPM_STATE, "bincode", meta)?,
+            log: b.channel::<Log>(topics::LOG)?,
+        };
+        let mut rec = b.start(16);
+        rec.scene(scene.to_toml())?;
+        frames.recorder = Some(rec);
+        frames.channels = Some(channels);
+    }
+    for n in &notes {
+        frames.log(0.0, log_level::INFO, n)?;
+    }
+
+    let gp = gravity_phase(scene, &mut mpm, stop, progress);
+    if gp.steps > 0 {
+        let msg = format!(
+            "gravity phase: {} steps ({:.4} s simulated, {:.1} s wall), fastest point {:.2e} m/s at its end",
+            gp.steps, gp.time, gp.wall_seconds, gp.max_speed
+        );
+        progress.log(&msg);
+        frames.log(0.0, log_level::INFO, &msg)?;
+    }
+    let solid_mass0 = mpm.state.solid.set.total_mass();
+    let liquid_mass0 = mpm.state.liquid.set.total_mass();
+
+    let dt = mpm.params.dt;
+    let steps_per_frame = ((out.record_interval / dt).round() as u64).max(1);
+    let steps_per_state = ((out.state_interval.unwrap_or(5.0 * out.record_interval) / dt).round() as u64).max(1);
+    let total_steps = (out.end_time / dt).ceil() as u64;
+    let points = (mpm.state.solid.set.len() + mpm.state.liquid.set.len()) as f64;
+    let mut status = "completed";
+    let mut failure = None;
+    let mut rest_frames = 0;
+    let mut last_frame = Instant::now();
+    let mut last_progress = Instant::now();
+    let started = Instant::now();
+    let fraction = an.front_mass_fraction;
+    let speed_limit = 0.5 * mpm_wave_speed(scene);
+    // The section lies at mid-width of the flume, so it overlays a DEM–LBM run.
+    let mid_width = (0.5 * (scene.spec.domain.min[1] + scene.spec.domain.max[1])) as f32;
+    release_gates(&mut mpm, &gates, &mut frames)?;
+    record_frame(&mut frames, &mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, 0.0)?;
+    record_state(&mut frames, &mpm)?;
+    while mpm.state.steps < total_steps {
+        mpm.step();
+        release_gates(&mut mpm, &gates, &mut frames)?;
+        let steps = mpm.state.steps;
+        let t = mpm.state.time;
+        if stop.load(Ordering::Relaxed) {
+            status = "interrupted";
+            frames.log(t, log_level::WARNING, "interrupted by signal; recording the last state")?;
+            break;
+        }
+        if steps.is_multiple_of(steps_per_frame) {
+            if let Some(what) = watchdog(&mpm, speed_limit) {
+                status = "unstable";
+                frames.log(t, log_level::ERROR, &what)?;
+                failure = Some(RunError::Unstable { t, what });
+                break;
+            }
+            let rate = steps_per_frame as f64 * points / last_frame.elapsed().as_secs_f64().max(1e-9);
+            last_frame = Instant::now();
+            let m = record_frame(&mut frames, &mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, rate)?;
+            if steps.is_multiple_of(steps_per_state) {
+                record_state(&mut frames, &mpm)?;
+            }
+            let released = mpm.state.gates_held.iter().all(|h| !h);
+            rest_frames = if released && m.moving_fraction <= out.rest_fraction { rest_frames + 1 } else { 0 };
+            if out.stop_at_rest && rest_frames >= 3 {
+                status = "at_rest";
+                frames.log(t, log_level::INFO, "at rest")?;
+                break;
+            }
+        }
+        if last_progress.elapsed().as_secs_f64() > 0.5 {
+            progress.collapse(t, out.end_time, steps);
+            last_progress = Instant::now();
+        }
+    }
+    let wall = started.elapsed().as_secs_f64();
+    let (t, steps) = (mpm.state.time, mpm.state.steps);
+    progress.collapse(t, out.end_time, steps);
+    if !steps.is_multiple_of(steps_per_frame) && failure.is_none() {
+        record_frame(&mut frames, &mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, 0.0)?;
+    }
+    record_state(&mut frames, &mpm)?;
+
+    let s = &mpm.state.solid;
+    let bin = an.deposit_bin.unwrap_or(mpm.grid.h);
+    let half_z = s.set.half[1];
+    let deposit = deposit_profile(
+        s.set.x.iter().map(|x| (x[0], x[1] + half_z - scene.spec.domain.min[2])),
+        x0,
+        bin,
+        ((scene.spec.domain.max[0] - x0) / bin).ceil() as usize + 1,
+    );
+    let runout = frames.front.last().map(|f| f.x_norm).unwrap_or(f64::NAN);
+    let summary = RunSummary {
+        scene: scene.spec.scene.name.clone(),
+        method: "mpm".into(),
+        status: status.into(),
+        sim_time: t,
+        wall_seconds: wall,
+        steps,
+        throughput: Throughput {
+            particle_steps_per_s: None,
+            cell_updates_per_s: None,
+            point_updates_per_s: Some(points * steps as f64 / wall.max(1e-9)),
+            wall_per_sim_second: wall / t.max(1e-12),
+        },
+        t_ref,
+        front: if s.set.is_empty() { Vec::new() } else { frames.front.clone() },
+        runout: if s.set.is_empty() { f64::NAN } else { runout },
+        front_connected: Vec::new(),
+        runout_connected: None,
+        deposit: if s.set.is_empty() { Vec::new() } else { deposit },
+        porosity_initial,
+        liquid_front: frames.liquid_front.clone(),
+        dem: None,
+        lbm: None,
+        mpm: Some(MpmDetails {
+            elements: mpm.grid.elements,
+            element_size: mpm.grid.h,
+            shape_functions: format!("{:?}", mpm.grid.shape).to_lowercase(),
+            solid_points: s.set.len(),
+            liquid_points: mpm.state.liquid.set.len(),
+            time_step: dt,
+            gravity_phase_steps: gp.steps,
+            gravity_phase_time: gp.time,
+            gravity_phase_seconds: gp.wall_seconds,
+            soil_top,
+            solid_mass: s.set.total_mass(),
+            liquid_mass: mpm.state.liquid.set.total_mass(),
+            solid_mass_relative_change: rel(s.set.total_mass(), solid_mass0),
+            liquid_mass_relative_change: rel(mpm.state.liquid.set.total_mass(), liquid_mass0),
+            max_kinetic_energy: frames.max_kinetic_energy,
+            final_kinetic_energy: s.set.kinetic_energy() + mpm.state.liquid.set.kinetic_energy(),
+            fluidised_fraction_max: frames.max_fluidised,
+            quadratic_drag: mpm.params.drag.quadratic,
+            recording_fraction: frames.seconds / wall.max(1e-9),
+            threads: rayon::current_num_threads(),
+        }),
+        wall_seconds_total: None,
+        exchange: None,
+    };
+    let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
+    frames.log(t, log_level::INFO, &format!("run {status}: t = {t:.4} s, {steps} steps, runout {runout:.4}"))?;
+    if let Some(rec) = frames.recorder.take() {
+        rec.finish_with_summary(json.clone())?;
+    }
+    std::fs::write(&summary_path, json).map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
+    match failure {
+        Some(e) => Err(e),
+        None => Ok(summary),
+    }
+}
+
+fn rel(a: f64, b: f64) -> f64 {
+    if b > 0.0 {
+        (a - b) / b
+    } else {
+        0.0
+    }
+}
+
+/// The fastest wave speed, m/s.
+fn mpm_wave_speed(scene: &Scene) -> f64 {
+    crate::setup::time_step(scene).1
+}
+
+/// A reason to stop: a non-finite value, or a point faster than half the wave speed.
+fn watchdog(mpm: &Mpm, speed_limit: f64) -> Option<String> {
+    for (name, set) in [("solid", &mpm.state.solid.set), ("liquid", &mpm.state.liquid.set)] {
+        for (p, (x, v)) in set.x.iter().zip(&set.v).enumerate() {
+            let speed = (v[0] * v[0] + v[1] * v[1]).sqrt();
+            if !(x[0].is_finite() && x[1].is_finite() && speed.is_finite()) {
+                return Some(format!("{name} point {p} has a non-finite position or velocity"));
+            }
+            if speed > speed_limit {
+                return Some(format!(
+                    "{name} point {p} at ({:.4}, {:.4}) m moves at {speed:.2} m/s, over half the fastest wave speed ({:.1} m/s)",
+                    x[0],
+                    x[1],
+                    2.0 * speed_limit
+                ));
+            }
+        }
+    }
+    if let Some(p) = mpm.state.liquid.pressure.iter().position(|p| !p.is_finite()) {
+        return Some(format!("liquid point {p} has a non-finite pore pressure"));
+    }
+    None
+}
+
+fn release_gates(mpm: &mut Mpm, gates: &[(String, f64)], frames: &mut Frames) -> Result<(), RecordError> {
+    for (g, (name, at)) in gates.iter().enumerate() {
+        if mpm.state.gates_held[g] && mpm.state.time >= *at - 0.5 * mpm.params.dt {
+            mpm.release_gate(g);
+            frames.log(mpm.state.time, log_level::INFO, &format!("gate {name} released"))?;
+        }
+    }
+    Ok(())
+}
+
+fn record_state(frames: &mut Frames, mpm: &Mpm) -> Result<(), RecordError> {
+    if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
+        let record = MpmStateRecord { version: STATE_VERSION, state: mpm.state.clone() };
+        rec.log_bytes(ch.state, mpm.state.time, record.encode())?;
+    }
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn record_frame(
+    frames: &mut Frames,
+    mpm: &Mpm,
+    y: f32,
+    t_ref: f64,
+    x0: f64,
+    l0: f64,
+    fraction: f64,
+    rest_speed: f64,
+    rate: f64,
+) -> Result<Measures, RecordError> {
+    let started = Instant::now();
+    let t = mpm.state.time;
+    let mut scratch = std::mem::take(&mut frames.scratch);
+    let m = measure(mpm, fraction, rest_speed, &mut scratch);
+    frames.scratch = scratch;
+    let norm = |x: f64| (x - x0 - l0) / l0;
+    let s = &mpm.state.solid;
+    let l = &mpm.state.liquid;
+    if !s.set.is_empty() {
+        frames.front.push(FrontSample { t, t_norm: t / t_ref, x: m.front, x_norm: norm(m.front) });
+    }
+    if !l.set.is_empty() {
+        frames.liquid_front.push(FrontSample { t, t_norm: t / t_ref, x: m.liquid_front, x_norm: norm(m.liquid_front) });
+    }
+    let ke = (s.set.kinetic_energy(), l.set.kinetic_energy());
+    frames.max_kinetic_energy = frames.max_kinetic_energy.max(ke.0 + ke.1);
+    frames.max_fluidised = frames.max_fluidised.max(m.fluidised_fraction);
+    if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
+        let solid_fields = |p: usize| {
+            let sg = s.stress[p];
+            let mean = (sg[0] + sg[1] + sg[3]) / 3.0;
+            [speed(&s.set, p), s.porosity[p], -mean, if s.fluidised[p] { 1.0 } else { 0.0 }]
+        };
+        let cloud = cloud_of(&s.set, t, y, ["speed", "porosity", "mean_effective_stress", "fluidised"], solid_fields);
+        rec.log(ch.solid, t, &cloud)?;
+        let liquid_fields =
+            |p: usize| [speed(&l.set, p), l.pressure[p], if l.free_surface[p] { 1.0 } else { 0.0 }, l.set.volume[p]];
+        let cloud = cloud_of(&l.set, t, y, ["speed", "pore_pressure", "free_surface", "volume"], liquid_fields);
+        rec.log(ch.liquid, t, &cloud)?;
+        let metrics = MpmMetrics {
+            t,
+            t_norm: t / t_ref,
+            front_x: m.front,
+            front_norm: norm(m.front),
+            liquid_front_x: m.liquid_front,
+            liquid_front_norm: norm(m.liquid_front),
+            kinetic_energy_solid: ke.0,
+            kinetic_energy_liquid: ke.1,
+            max_speed_solid: s.set.max_speed(),
+            max_speed_liquid: l.set.max_speed(),
+            fluidised_fraction: m.fluidised_fraction,
+            max_pore_pressure: l.pressure.iter().cloned().fold(0.0, f64::max),
+            mean_porosity: if s.set.is_empty() {
+                f64::NAN
+            } else {
+                s.porosity.iter().sum::<f64>() / s.set.len() as f64
+            },
+            solid_mass: s.set.total_mass(),
+            liquid_mass: l.set.total_mass(),
+            point_updates_per_s: rate,
+        };
+        rec.log(ch.metrics, t, &metrics)?;
+    }
+    frames.seconds += started.elapsed().as_secs_f64();
+    Ok(m)
+}
+
+fn speed(set: &PointSet, p: usize) -> f64 {
+    let v = set.v[p];
+    (v[0] * v[0] + v[1] * v[1]).sqrt()
+}
+
+/// A point cloud of one phase in the world frame (x, y = mid-width, z) with four named fields.
+fn cloud_of(set: &PointSet, t: f64, y: f32, names: [&str; 4], fields: impl Fn(usize) -> [f64; 4]) -> PointCloud {
+    const STRIDE: usize = 28;
+    let mut data = Vec::with_capacity(set.len() * STRIDE);
+    for p in 0..set.len() {
+        let x = set.x[p];
+        data.extend_from_slice(&(x[0] as f32).to_le_bytes());
+        data.extend_from_slice(&y.to_le_bytes());
+        data.extend_from_slice(&(x[1] as f32).to_le_bytes());
+        for v in fields(p) {
+            data.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+    }
+    let mut fs = vec![f32_field("x", 0), f32_field("y", 4), f32_field("z", 8)];
+    for (k, name) in names.iter().enumerate() {
+        fs.push(f32_field(name, 12 + 4 * k as u32));
+    }
+    PointCloud {
+        timestamp: Some(timestamp(t)),
+        frame_id: "world".into(),
+        pose: Some(identity_pose()),
+        point_stride: STRIDE as u32,
+        fields: fs,
+        data: data.into(),
+    }
+}

@@ -1,0 +1,207 @@
+//! A scene on the MPM grid: the x–z section of the box, the soil and
+//! liquid points seeded in their blocks, fixities from the walls and
+//! gates, and the initial stresses (docs/mpm.md, "Gravity phase and
+//! initial stresses").
+
+use schemas::scene::{Face, InitialStress, PackingSpec, Scene};
+
+use crate::drag::DragLaw;
+use crate::grid::{Grid, GHOST};
+use crate::mohr_coulomb::MohrCoulomb;
+use crate::solver::{Fixities, LiquidPoints, Mpm, MpmState, Params, PointSet, SolidPoints};
+
+#[derive(Debug, thiserror::Error)]
+pub enum SetupError {
+    #[error("the scene is not an MPM scene: {0}")]
+    NotMpm(String),
+}
+
+/// The solver and what the run needs to know about the scene.
+#[derive(Debug)]
+pub struct MpmSetup {
+    pub mpm: Mpm,
+    /// Gate names and release times, scene order.
+    pub gates: Vec<(String, f64)>,
+    /// Initial porosity n0 of the soil (NaN without soil).
+    pub porosity_initial: f64,
+    /// Top of the soil block, m (NaN without soil).
+    pub soil_top: f64,
+    /// Lines for the log.
+    pub notes: Vec<String>,
+}
+
+/// Fastest wave speed of the phases present and the step it allows
+/// (docs/mpm.md, "Time step").
+pub fn time_step(scene: &Scene) -> (f64, f64) {
+    let t = scene.mpm_time_step();
+    (t.dt, t.max_speed)
+}
+
+pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
+    let spec = scene.mpm();
+    let s = &scene.spec;
+    let d = &s.domain;
+    let h = spec.element_size;
+    let elements =
+        [((d.max[0] - d.min[0]) / h).round().max(1.0) as usize, ((d.max[2] - d.min[2]) / h).round().max(1.0) as usize];
+    let grid = Grid { origin: [d.min[0], d.min[2]], h, elements, shape: spec.shape_functions };
+    let soil = s.particles.first();
+    let liquid = s.fluids.first();
+    let (rho_s, grain, n0, soil_region) = match soil {
+        Some(p) => match &p.packing {
+            PackingSpec::Deposit { region, porosity: Some(n), .. } => (p.density, p.diameter, *n, Some(*region)),
+            _ => {
+                return Err(SetupError::NotMpm(
+                    "the soil block needs packing.method = \"deposit\" with `porosity`".into(),
+                ))
+            }
+        },
+        None => (f64::NAN, f64::NAN, f64::NAN, None),
+    };
+    let (rho_l, mu, liquid_region) = match liquid {
+        Some(f) => (f.density, f.viscosity, Some(f.region)),
+        None => (1000.0, 1e-3, None),
+    };
+    let (dt, c_max) = time_step(scene);
+    let gravity = [d.gravity[0], d.gravity[2]];
+    let g_down = -d.gravity[2];
+    let params = Params {
+        dt,
+        gravity,
+        solid_density: rho_s,
+        liquid_density: rho_l,
+        viscosity: mu,
+        bulk_modulus: spec.liquid_bulk_modulus,
+        cavitation: spec.cavitation_threshold,
+        max_porosity: spec.max_porosity,
+        damping: spec.damping,
+        free_surface_fill: spec.free_surface_fill,
+        soil: MohrCoulomb::new(
+            spec.young_modulus,
+            spec.poisson_ratio,
+            spec.friction_angle,
+            spec.cohesion,
+            spec.dilatancy_angle,
+        ),
+        drag: DragLaw {
+            grain_diameter: if grain.is_finite() { grain } else { 1e-3 },
+            ergun_a: spec.ergun_a,
+            ergun_b: spec.ergun_b,
+            viscosity: mu,
+            liquid_density: rho_l,
+            quadratic: spec.quadratic_drag,
+        },
+    };
+
+    let (a, b) = spec.point_grid();
+    let v0 = h * h / (a * b) as f64;
+    let half = [h / (2.0 * a as f64), h / (2.0 * b as f64)];
+    let inside =
+        |r: &schemas::scene::BoxSpec, x: f64, z: f64| x > r.min[0] && x < r.max[0] && z > r.min[2] && z < r.max[2];
+    let soil_top = soil_region.map(|r| r.max[2]).unwrap_or(f64::NAN);
+    let k0 = spec.poisson_ratio / (1.0 - spec.poisson_ratio);
+    let with_k0 = spec.initial_stress == InitialStress::K0;
+
+    let mut solid = SolidPoints { set: PointSet { half, ..Default::default() }, ..Default::default() };
+    let mut liq = LiquidPoints { set: PointSet { half, ..Default::default() }, ..Default::default() };
+    let top_row = soil_top - h / b as f64;
+    for k in 0..elements[1] {
+        for i in 0..elements[0] {
+            let centre = [grid.origin[0] + (i as f64 + 0.5) * h, grid.origin[1] + (k as f64 + 0.5) * h];
+            let in_soil = soil_region.is_some_and(|r| inside(&r, centre[0], centre[1]));
+            let in_liquid = liquid_region.is_some_and(|r| inside(&r, centre[0], centre[1]));
+            for jz in 0..b {
+                for jx in 0..a {
+                    let x = [
+                        grid.origin[0] + (i as f64 + (jx as f64 + 0.5) / a as f64) * h,
+                        grid.origin[1] + (k as f64 + (jz as f64 + 0.5) / b as f64) * h,
+                    ];
+                    // Water above this point (in this column) when the liquid block covers it.
+                    let water = liquid_region
+                        .filter(|r| x[0] > r.min[0] && x[0] < r.max[0])
+                        .map(|r| r.max[2])
+                        .unwrap_or(f64::NEG_INFINITY);
+                    if in_soil {
+                        let buoyant = (water.min(soil_top) - x[1]).max(0.0);
+                        let sv = if with_k0 {
+                            -g_down * (1.0 - n0) * (rho_s * (soil_top - x[1]) - rho_l * buoyant)
+                        } else {
+                            0.0
+                        };
+                        solid.set.x.push(x);
+                        solid.set.v.push([0.0; 2]);
+                        solid.set.mass.push((1.0 - n0) * rho_s * v0);
+                        solid.set.volume.push(v0);
+                        solid.porosity.push(n0);
+                        solid.stress.push([k0 * sv, sv, 0.0, k0 * sv]);
+                        solid.fluidised.push(false);
+                        let load = if x[1] > top_row { [0.0, -spec.top_load * h / a as f64] } else { [0.0; 2] };
+                        solid.load.push(load);
+                    }
+                    if in_liquid {
+                        let n = if in_soil { n0 } else { 1.0 };
+                        let p = if with_k0 { rho_l * g_down * (water - x[1]).max(0.0) } else { 0.0 };
+                        liq.set.x.push(x);
+                        liq.set.v.push([0.0; 2]);
+                        liq.set.mass.push(n * rho_l * v0);
+                        liq.set.volume.push(v0);
+                        liq.pressure.push(p);
+                        liq.viscous.push([0.0; 4]);
+                        liq.free_surface.push(false);
+                    }
+                }
+            }
+        }
+    }
+
+    // Fixities: ghost nodes fixed; z_min wall fixed in both directions; other walls rollers.
+    let [row, rows] = grid.node_dims();
+    let mut base = vec![[1.0, 1.0]; row * rows];
+    for r in 0..rows {
+        for c in 0..row {
+            let node = &mut base[r * row + c];
+            let (i, k) = (c as isize - GHOST as isize, r as isize - GHOST as isize);
+            let (nx, nz) = (elements[0] as isize, elements[1] as isize);
+            if i < 0 || k < 0 || i > nx || k > nz {
+                *node = [0.0, 0.0];
+                continue;
+            }
+            for face in &d.walls {
+                match face {
+                    Face::XMin if i == 0 => node[0] = 0.0,
+                    Face::XMax if i == nx => node[0] = 0.0,
+                    Face::ZMin if k == 0 => *node = [0.0, 0.0],
+                    Face::ZMax if k == nz => node[1] = 0.0,
+                    _ => {}
+                }
+            }
+        }
+    }
+    let mut gates = Vec::new();
+    let mut gate_nodes = Vec::new();
+    for gate in &s.gates {
+        let column = ((gate.point[0] - grid.origin[0]) / h).round() as usize + GHOST;
+        gate_nodes.push((GHOST..GHOST + elements[1] + 1).map(|r| r * row + column).collect());
+        gates.push((gate.name.clone(), gate.release_time));
+    }
+    let state = MpmState { time: 0.0, steps: 0, gates_held: vec![true; s.gates.len()], solid, liquid: liq };
+    let mut notes = vec![format!(
+        "grid {} x {} elements of {h} m ({:?} shape functions); {} solid and {} liquid points ({a} x {b} per element); dt = {dt:.3e} s (c_max = {c_max:.1} m/s, courant {})",
+        elements[0],
+        elements[1],
+        spec.shape_functions,
+        state.solid.set.len(),
+        state.liquid.set.len(),
+        spec.courant
+    )];
+    if soil.is_some() && liquid.is_some() {
+        notes.push(format!(
+            "soil: n0 = {n0}, D = {grain} m, permeability {:.3e} m^2 (hydraulic conductivity {:.3e} m/s), quadratic drag {}",
+            params.drag.permeability(n0),
+            params.drag.hydraulic_conductivity(n0, g_down.abs()),
+            if spec.quadratic_drag { "on" } else { "off" }
+        ));
+    }
+    let mpm = Mpm::new(params, grid, state, Fixities { base, gates: gate_nodes });
+    Ok(MpmSetup { mpm, gates, porosity_initial: n0, soil_top, notes })
+}

@@ -1,0 +1,811 @@
+//! One explicit step of the two-phase double-point MPM, built from the
+//! named stages of docs/mpm.md ("One step"). State (what a restart needs)
+//! is kept apart from scratch (what every step rebuilds).
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::drag::DragLaw;
+use crate::grid::{Grid, Stencil};
+use crate::mohr_coulomb::MohrCoulomb;
+
+/// Porosity bounds of the solid points: grains are incompressible, so n
+/// cannot leave (0, 1); the bounds keep κ and the volumes finite.
+pub const POROSITY_BOUNDS: (f64, f64) = (0.05, 0.99);
+/// Largest nodal solid fraction (docs/mpm.md, "Porosity fields").
+const MAX_SOLID_FRACTION: f64 = 0.95;
+/// Points per parallel work item: below this a stage is not worth splitting.
+const CHUNK: usize = 256;
+
+/// Material and numerical parameters, SI.
+#[derive(Debug, Clone)]
+pub struct Params {
+    /// Time step Δt, s.
+    pub dt: f64,
+    /// Gravity (x, z), m/s².
+    pub gravity: [f64; 2],
+    /// Grain density ρ_s and liquid density ρ_L, kg/m³.
+    pub solid_density: f64,
+    pub liquid_density: f64,
+    /// Liquid dynamic viscosity μ, Pa·s.
+    pub viscosity: f64,
+    /// Liquid bulk modulus K_L, Pa.
+    pub bulk_modulus: f64,
+    /// Liquid tension tolerated, Pa (p ≥ −this).
+    pub cavitation: f64,
+    /// Fluidisation porosity n_max.
+    pub max_porosity: f64,
+    /// Local damping α.
+    pub damping: f64,
+    /// Filling ratio below which a liquid point is on the free surface.
+    pub free_surface_fill: f64,
+    pub soil: MohrCoulomb,
+    pub drag: DragLaw,
+}
+
+/// Kinematics shared by both point sets.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct PointSet {
+    /// Position (x, z), m.
+    pub x: Vec<[f64; 2]>,
+    /// Velocity, m/s.
+    pub v: Vec<[f64; 2]>,
+    /// Mass per metre of width, kg/m (constant).
+    pub mass: Vec<f64>,
+    /// Represented (mixture) area per metre of width, m².
+    pub volume: Vec<f64>,
+    /// GIMP half-widths (x, z), m.
+    pub half: [f64; 2],
+}
+
+impl PointSet {
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+    /// ½ Σ m v², J/m.
+    pub fn kinetic_energy(&self) -> f64 {
+        self.v.iter().zip(&self.mass).map(|(v, m)| 0.5 * m * (v[0] * v[0] + v[1] * v[1])).sum()
+    }
+    pub fn max_speed(&self) -> f64 {
+        self.v.iter().map(|v| (v[0] * v[0] + v[1] * v[1]).sqrt()).fold(0.0, f64::max)
+    }
+    pub fn total_mass(&self) -> f64 {
+        self.mass.iter().sum()
+    }
+}
+
+/// Solid material points (the skeleton).
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct SolidPoints {
+    pub set: PointSet,
+    /// Porosity n.
+    pub porosity: Vec<f64>,
+    /// Effective stress (σ_xx, σ_zz, σ_xz, σ_yy), Pa, tension positive.
+    pub stress: Vec<[f64; 4]>,
+    /// Fluidised (n > n_max): no effective stress.
+    pub fluidised: Vec<bool>,
+    /// External force (x, z), N/m (the top load).
+    pub load: Vec<[f64; 2]>,
+}
+
+/// Liquid material points.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct LiquidPoints {
+    pub set: PointSet,
+    /// Pore pressure p, Pa, compression positive.
+    pub pressure: Vec<f64>,
+    /// Viscous stress (τ_xx, τ_zz, τ_xz, τ_yy), Pa.
+    pub viscous: Vec<[f64; 4]>,
+    /// On the free surface at the last step (p held at 0).
+    pub free_surface: Vec<bool>,
+}
+
+/// Everything that determines the rest of a run.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct MpmState {
+    /// Simulated time, s (negative during the gravity phase is not used: it restarts at 0).
+    pub time: f64,
+    pub steps: u64,
+    pub solid: SolidPoints,
+    pub liquid: LiquidPoints,
+    /// Whether each gate (scene order) still holds.
+    pub gates_held: Vec<bool>,
+}
+
+/// Per-node sums of the first map.
+#[derive(Debug, Clone, Copy, Default)]
+struct NodeSums {
+    mass_s: f64,
+    momentum_s: [f64; 2],
+    mass_l: f64,
+    momentum_l: [f64; 2],
+    /// Σ N V of the solid and of the liquid points, and Σ N m_s/ρ_s.
+    volume_s: f64,
+    volume_l: f64,
+    solid_volume: f64,
+}
+
+/// Point data of one phase the grid needs each step.
+#[derive(Debug, Default)]
+struct PointScratch {
+    stencil: Vec<Stencil>,
+    element: Vec<u32>,
+    /// Points sorted by stencil base node: `order[start[b]..start[b+1]]`.
+    start: Vec<u32>,
+    order: Vec<u32>,
+    /// Next free slot per bin while sorting.
+    cursor: Vec<u32>,
+    /// Force data prepared for the second map.
+    force: Vec<[f64; 6]>,
+}
+
+impl PointScratch {
+    fn bin(&self, base: usize) -> &[u32] {
+        &self.order[self.start[base] as usize..self.start[base + 1] as usize]
+    }
+}
+
+/// Per-element fields.
+#[derive(Debug, Default)]
+struct ElementScratch {
+    porosity: Vec<f64>,
+    grad_porosity: Vec<[f64; 2]>,
+    liquid_points: Vec<u32>,
+    solid_mass_solid: Vec<f64>,
+    solid_mass_fluidised: Vec<f64>,
+    /// Δε_w of the pressure update.
+    volumetric_strain: Vec<f64>,
+}
+
+/// Nodal fixities: 1 free, 0 fixed, per component (both phases alike).
+#[derive(Debug, Clone)]
+pub struct Fixities {
+    /// Walls and ghost nodes.
+    pub base: Vec<[f64; 2]>,
+    /// Stored node indices each gate fixes in x while it holds.
+    pub gates: Vec<Vec<usize>>,
+}
+
+/// Wall seconds per stage, summed over the run.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct StageSeconds {
+    pub locate: f64,
+    pub map: f64,
+    pub forces: f64,
+    pub update_points: f64,
+}
+
+/// The solver: parameters, grid, state and scratch.
+pub struct Mpm {
+    pub params: Params,
+    pub grid: Grid,
+    pub state: MpmState,
+    pub fixities: Fixities,
+    mask: Vec<[f64; 2]>,
+    /// ∫ N_I over the box per node (h² inside, less on the walls), m².
+    full_volume: Vec<f64>,
+    solid_scratch: PointScratch,
+    liquid_scratch: PointScratch,
+    elements: ElementScratch,
+    sums: Vec<NodeSums>,
+    velocity_s: Vec<[f64; 2]>,
+    velocity_l: Vec<[f64; 2]>,
+    relative: Vec<[f64; 2]>,
+    solid_fraction: Vec<f64>,
+    fill: Vec<f64>,
+    /// Nodal accelerations and displacement increments, [solid, liquid].
+    accel: Vec<[[f64; 2]; 2]>,
+    disp: Vec<[[f64; 2]; 2]>,
+    liquid_fill: Vec<f64>,
+    /// Node rows and columns touched by any stencil this step (inclusive).
+    rows: (usize, usize),
+    columns: (usize, usize),
+    mass_tolerance: f64,
+    pub stage_seconds: StageSeconds,
+    pub timing: bool,
+}
+
+impl std::fmt::Debug for Mpm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Mpm")
+            .field("grid", &self.grid)
+            .field("solid_points", &self.state.solid.set.len())
+            .field("liquid_points", &self.state.liquid.set.len())
+            .field("time", &self.state.time)
+            .finish()
+    }
+}
+
+impl Mpm {
+    /// A solver over `grid` from `state`. Preconditions: points inside the
+    /// box; `fixities.base` sized to the grid's nodes.
+    pub fn new(params: Params, grid: Grid, state: MpmState, fixities: Fixities) -> Self {
+        let nodes = grid.node_count();
+        let [row, rows] = grid.node_dims();
+        let mut full_volume = vec![0.0; nodes];
+        let h = grid.h;
+        for r in 0..rows {
+            for c in 0..row {
+                // Fraction of the node's hat support inside the box, per axis.
+                let inside = |i: usize, n: usize| -> f64 {
+                    let i = i as isize - crate::grid::GHOST as isize;
+                    if i < 0 || i > n as isize {
+                        0.0
+                    } else if i == 0 || i == n as isize {
+                        0.5
+                    } else {
+                        1.0
+                    }
+                };
+                full_volume[r * row + c] = h * h * inside(c, grid.elements[0]) * inside(r, grid.elements[1]);
+            }
+        }
+        let min_mass = state.solid.set.mass.iter().chain(&state.liquid.set.mass).cloned().fold(f64::INFINITY, f64::min);
+        let ne = grid.element_count();
+        let mut mpm = Mpm {
+            params,
+            grid,
+            mask: fixities.base.clone(),
+            fixities,
+            full_volume,
+            solid_scratch: PointScratch::default(),
+            liquid_scratch: PointScratch::default(),
+            elements: ElementScratch {
+                porosity: vec![1.0; ne],
+                grad_porosity: vec![[0.0; 2]; ne],
+                liquid_points: vec![0; ne],
+                solid_mass_solid: vec![0.0; ne],
+                solid_mass_fluidised: vec![0.0; ne],
+                volumetric_strain: vec![0.0; ne],
+            },
+            sums: vec![NodeSums::default(); nodes],
+            velocity_s: vec![[0.0; 2]; nodes],
+            velocity_l: vec![[0.0; 2]; nodes],
+            relative: vec![[0.0; 2]; nodes],
+            solid_fraction: vec![0.0; nodes],
+            fill: vec![0.0; nodes],
+            accel: vec![[[0.0; 2]; 2]; nodes],
+            disp: vec![[[0.0; 2]; 2]; nodes],
+            liquid_fill: Vec::new(),
+            rows: (0, 0),
+            columns: (0, 0),
+            mass_tolerance: if min_mass.is_finite() { 1e-6 * min_mass } else { 0.0 },
+            stage_seconds: StageSeconds::default(),
+            timing: false,
+            state,
+        };
+        mpm.apply_gate_fixities();
+        mpm
+    }
+
+    /// Rebuilds the mask from the walls and the gates that still hold.
+    pub fn apply_gate_fixities(&mut self) {
+        self.mask.copy_from_slice(&self.fixities.base);
+        for (g, nodes) in self.fixities.gates.iter().enumerate() {
+            if self.state.gates_held.get(g).copied().unwrap_or(false) {
+                for &n in nodes {
+                    self.mask[n][0] = 0.0;
+                }
+            }
+        }
+    }
+
+    /// Releases gate `g` (its fixity is removed from the next step on).
+    pub fn release_gate(&mut self, g: usize) {
+        if let Some(h) = self.state.gates_held.get_mut(g) {
+            *h = false;
+        }
+        self.apply_gate_fixities();
+    }
+
+    /// Advances one step of Δt.
+    pub fn step(&mut self) {
+        let t0 = self.timing.then(std::time::Instant::now);
+        self.locate();
+        let t1 = self.timing.then(std::time::Instant::now);
+        self.map_to_grid();
+        self.porosity_fields();
+        let t2 = self.timing.then(std::time::Instant::now);
+        self.prepare_forces();
+        self.solve_nodes();
+        let t3 = self.timing.then(std::time::Instant::now);
+        self.update_velocities();
+        self.remap_momentum();
+        self.volumetric_strain_per_element();
+        self.update_solid_points();
+        self.update_liquid_points();
+        self.state.time += self.params.dt;
+        self.state.steps += 1;
+        if let (Some(t0), Some(t1), Some(t2), Some(t3)) = (t0, t1, t2, t3) {
+            let s = &mut self.stage_seconds;
+            s.locate += (t1 - t0).as_secs_f64();
+            s.map += (t2 - t1).as_secs_f64();
+            s.forces += (t3 - t2).as_secs_f64();
+            s.update_points += t3.elapsed().as_secs_f64();
+        }
+    }
+
+    // -- stage 1 ---------------------------------------------------------
+
+    /// Stencils, elements and bins of both point sets; the node range touched.
+    fn locate(&mut self) {
+        let grid = self.grid;
+        let nodes = grid.node_count();
+        let row = grid.node_dims()[0];
+        let mut rows = (usize::MAX, 0);
+        let mut columns = (usize::MAX, 0);
+        for (set, scratch) in
+            [(&self.state.solid.set, &mut self.solid_scratch), (&self.state.liquid.set, &mut self.liquid_scratch)]
+        {
+            let n = set.len();
+            scratch.stencil.resize(n, Stencil::default());
+            scratch.element.resize(n, 0);
+            scratch.order.resize(n, 0);
+            scratch.start.clear();
+            scratch.start.resize(nodes + 1, 0);
+            let half = set.half;
+            scratch
+                .stencil
+                .par_iter_mut()
+                .zip(scratch.element.par_iter_mut())
+                .zip(set.x.par_iter())
+                .with_min_len(CHUNK)
+                .for_each(|((st, el), &x)| {
+                    *st = grid.stencil(x, half);
+                    *el = grid.element_of(x) as u32;
+                });
+            // Stable counting sort by base node: bins hold points in index order.
+            for st in &scratch.stencil {
+                scratch.start[st.base as usize + 1] += 1;
+                let (c, r) = (st.base as usize % row, st.base as usize / row);
+                rows = (rows.0.min(r), rows.1.max(r));
+                columns = (columns.0.min(c), columns.1.max(c));
+            }
+            for b in 0..nodes {
+                scratch.start[b + 1] += scratch.start[b];
+            }
+            scratch.cursor.clear();
+            scratch.cursor.extend_from_slice(&scratch.start[..nodes]);
+            for (p, st) in scratch.stencil.iter().enumerate() {
+                let slot = &mut scratch.cursor[st.base as usize];
+                scratch.order[*slot as usize] = p as u32;
+                *slot += 1;
+            }
+        }
+        if rows.0 == usize::MAX {
+            rows = (0, 0);
+            columns = (0, 0);
+        }
+        let [row_len, row_count] = grid.node_dims();
+        self.rows = (rows.0, (rows.1 + 2).min(row_count - 1));
+        self.columns = (columns.0, (columns.1 + 2).min(row_len - 1));
+
+        let e = &mut self.elements;
+        e.liquid_points.fill(0);
+        e.solid_mass_solid.fill(0.0);
+        e.solid_mass_fluidised.fill(0.0);
+        for &el in &self.liquid_scratch.element {
+            e.liquid_points[el as usize] += 1;
+        }
+        let solid = &self.state.solid;
+        for (p, &el) in self.solid_scratch.element.iter().enumerate() {
+            if solid.fluidised[p] {
+                e.solid_mass_fluidised[el as usize] += solid.set.mass[p];
+            } else {
+                e.solid_mass_solid[el as usize] += solid.set.mass[p];
+            }
+        }
+    }
+
+    // -- stage 2 ---------------------------------------------------------
+
+    /// Calls `f(point, N, ∇N)` for every point of `scratch` whose stencil reaches stored node `node`.
+    #[inline(always)]
+    fn gather(scratch: &PointScratch, row: usize, node: usize, mut f: impl FnMut(usize, f64, [f64; 2])) {
+        let (c, r) = (node % row, node / row);
+        for l in 0..3 {
+            if r < l {
+                break;
+            }
+            for j in 0..3 {
+                if c < j {
+                    break;
+                }
+                let base = node - l * row - j;
+                for &p in scratch.bin(base) {
+                    let st = &scratch.stencil[p as usize];
+                    let n = st.wx[j] * st.wz[l];
+                    let grad = [st.gx[j] * st.wz[l], st.wx[j] * st.gz[l]];
+                    f(p as usize, n, grad);
+                }
+            }
+        }
+    }
+
+    /// Runs `f(node)` over the touched node range in parallel, writing `out[node]`.
+    fn for_active_nodes<T: Send>(&self, out: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
+        let row = self.grid.node_dims()[0];
+        let (r0, r1) = self.rows;
+        let (c0, c1) = self.columns;
+        out[r0 * row..(r1 + 1) * row].par_chunks_mut(row).enumerate().for_each(|(k, chunk)| {
+            let r = r0 + k;
+            for (c, slot) in chunk.iter_mut().enumerate().take(c1 + 1).skip(c0) {
+                f(r * row + c, slot);
+            }
+        });
+    }
+
+    /// Mass, momentum and volumes of both phases at the nodes; nodal
+    /// velocities, relative velocity, solid fraction and filling ratio.
+    fn map_to_grid(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let (solid, liquid) = (&self.state.solid.set, &self.state.liquid.set);
+        let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
+        let rho_s = self.params.solid_density;
+        let mut sums = std::mem::take(&mut self.sums);
+        self.for_active_nodes(&mut sums, |node, out| {
+            let mut s = NodeSums::default();
+            Self::gather(ss, row, node, |p, n, _| {
+                let m = n * solid.mass[p];
+                s.mass_s += m;
+                s.momentum_s[0] += m * solid.v[p][0];
+                s.momentum_s[1] += m * solid.v[p][1];
+                s.volume_s += n * solid.volume[p];
+                s.solid_volume += m / rho_s;
+            });
+            Self::gather(ls, row, node, |p, n, _| {
+                let m = n * liquid.mass[p];
+                s.mass_l += m;
+                s.momentum_l[0] += m * liquid.v[p][0];
+                s.momentum_l[1] += m * liquid.v[p][1];
+                s.volume_l += n * liquid.volume[p];
+            });
+            *out = s;
+        });
+        self.sums = sums;
+        let tol = self.mass_tolerance;
+        let (r0, r1) = self.rows;
+        let (c0, c1) = self.columns;
+        for r in r0..=r1 {
+            for c in c0..=c1 {
+                let i = r * row + c;
+                let s = &self.sums[i];
+                let mask = self.mask[i];
+                let vs = if s.mass_s > tol {
+                    [mask[0] * s.momentum_s[0] / s.mass_s, mask[1] * s.momentum_s[1] / s.mass_s]
+                } else {
+                    [0.0; 2]
+                };
+                let vl = if s.mass_l > tol {
+                    [mask[0] * s.momentum_l[0] / s.mass_l, mask[1] * s.momentum_l[1] / s.mass_l]
+                } else {
+                    [0.0; 2]
+                };
+                self.velocity_s[i] = vs;
+                self.velocity_l[i] = vl;
+                self.relative[i] =
+                    if s.mass_s > tol && s.mass_l > tol { [vl[0] - vs[0], vl[1] - vs[1]] } else { [0.0; 2] };
+                let v = s.volume_s.max(s.volume_l);
+                self.solid_fraction[i] = if v > 0.0 { (s.solid_volume / v).min(MAX_SOLID_FRACTION) } else { 0.0 };
+                let full = self.full_volume[i];
+                self.fill[i] = if full > 0.0 { s.volume_l / full } else { 0.0 };
+            }
+        }
+    }
+
+    /// Element porosity and its gradient from the corner nodes at the centroid.
+    fn porosity_fields(&mut self) {
+        let grid = self.grid;
+        let row = grid.node_dims()[0];
+        let h = grid.h;
+        let c = &self.solid_fraction;
+        let (r0, r1) = self.rows;
+        let (c0, c1) = self.columns;
+        let nx = grid.elements[0];
+        for r in r0.max(1)..r1.min(grid.elements[1] + 1) {
+            for col in c0.max(1)..c1.min(nx + 1) {
+                let e = (r - 1) * nx + (col - 1);
+                let n0 = r * row + col;
+                let (a, b, d, f) = (c[n0], c[n0 + 1], c[n0 + row], c[n0 + row + 1]);
+                let mean = 0.25 * (a + b + d + f);
+                self.elements.porosity[e] = 1.0 - mean;
+                self.elements.grad_porosity[e] = [-((b - a) + (f - d)) / (2.0 * h), -((d - a) + (f - b)) / (2.0 * h)];
+            }
+        }
+    }
+
+    // -- stage 3 ---------------------------------------------------------
+
+    /// Per-point force data: stress × volume, the drag coefficient of solid
+    /// points, porosity terms and filling ratio of liquid points.
+    fn prepare_forces(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let solid = &self.state.solid;
+        let drag = &self.params.drag;
+        let relative = &self.relative;
+        let liquid_points = &self.elements.liquid_points;
+        let ss = &mut self.solid_scratch;
+        ss.force.resize(solid.set.len(), [0.0; 6]);
+        ss.force.par_iter_mut().enumerate().with_min_len(CHUNK).for_each(|(p, f)| {
+            let st = &ss.stencil[p];
+            let v = solid.set.volume[p];
+            let s = solid.stress[p];
+            let q = if liquid_points[ss.element[p] as usize] > 0 {
+                let w = st.interpolate(row, |i| relative[i]);
+                v * drag.coefficient(solid.porosity[p], (w[0] * w[0] + w[1] * w[1]).sqrt())
+            } else {
+                0.0
+            };
+            *f = [s[0] * v, s[1] * v, s[2] * v, q, 0.0, 0.0];
+        });
+        let liquid = &self.state.liquid;
+        let fill = &self.fill;
+        let el = &self.elements;
+        let ls = &mut self.liquid_scratch;
+        ls.force.resize(liquid.set.len(), [0.0; 6]);
+        self.liquid_fill.resize(liquid.set.len(), 0.0);
+        ls.force.par_iter_mut().zip(self.liquid_fill.par_iter_mut()).enumerate().with_min_len(CHUNK).for_each(
+            |(p, (f, fl))| {
+                let st = &ls.stencil[p];
+                let e = ls.element[p] as usize;
+                let (n, gn) = (el.porosity[e], el.grad_porosity[e]);
+                let v = liquid.set.volume[p];
+                let pr = liquid.pressure[p];
+                let t = liquid.viscous[p];
+                let (sxx, szz, sxz) = (t[0] - pr, t[1] - pr, t[2]);
+                *f = [sxx * v, szz * v, sxz * v, n, (sxx * gn[0] + sxz * gn[1]) * v, (sxz * gn[0] + szz * gn[1]) * v];
+                let mut w = 0.0;
+                st.for_each(row, |node, n, _| w += n * fill[node]);
+                *fl = w;
+            },
+        );
+    }
+
+    /// Nodal forces, local damping, drag implicit per node, accelerations.
+    fn solve_nodes(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let p = &self.params;
+        let (dt, g, alpha) = (p.dt, p.gravity, p.damping);
+        let (solid, liquid) = (&self.state.solid, &self.state.liquid);
+        let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
+        let (sums, mask, vs_all, vl_all) = (&self.sums, &self.mask, &self.velocity_s, &self.velocity_l);
+        let tol = self.mass_tolerance;
+        let mut accel = std::mem::take(&mut self.accel);
+        self.for_active_nodes(&mut accel, |node, out| {
+            let mut fs = [0.0; 2];
+            let mut fl = [0.0; 2];
+            let mut q = 0.0;
+            Self::gather(ss, row, node, |pt, n, gr| {
+                let f = &ss.force[pt];
+                let m = solid.set.mass[pt];
+                let load = solid.load[pt];
+                fs[0] += n * (m * g[0] + load[0]) - (f[0] * gr[0] + f[2] * gr[1]);
+                fs[1] += n * (m * g[1] + load[1]) - (f[2] * gr[0] + f[1] * gr[1]);
+                q += n * f[3];
+            });
+            Self::gather(ls, row, node, |pt, n, gr| {
+                let f = &ls.force[pt];
+                let m = liquid.set.mass[pt];
+                let porosity = f[3];
+                let div = [f[0] * gr[0] + f[2] * gr[1], f[2] * gr[0] + f[1] * gr[1]];
+                fl[0] += n * m * g[0] - porosity * div[0] - n * f[4];
+                fl[1] += n * m * g[1] - porosity * div[1] - n * f[5];
+                fs[0] += -(1.0 - porosity) * div[0] + n * f[4];
+                fs[1] += -(1.0 - porosity) * div[1] + n * f[5];
+            });
+            let s = &sums[node];
+            let (vs, vl) = (vs_all[node], vl_all[node]);
+            let mut a = [[0.0; 2]; 2];
+            for d in 0..2 {
+                let m = mask[node][d];
+                if m == 0.0 {
+                    continue;
+                }
+                let damp = |f: f64, v: f64| if v != 0.0 { f - alpha * f.abs() * v.signum() } else { f };
+                let (f_s, f_l) = (damp(fs[d], vs[d]), damp(fl[d], vl[d]));
+                let (has_s, has_l) = (s.mass_s > tol, s.mass_l > tol);
+                if has_s && has_l && q > 0.0 {
+                    let w0 = vl[d] - vs[d];
+                    let w1 = (w0 + dt * (f_l / s.mass_l - f_s / s.mass_s))
+                        / (1.0 + dt * q * (1.0 / s.mass_l + 1.0 / s.mass_s));
+                    a[0][d] = (f_s + q * w1) / s.mass_s;
+                    a[1][d] = (f_l - q * w1) / s.mass_l;
+                } else {
+                    if has_s {
+                        a[0][d] = f_s / s.mass_s;
+                    }
+                    if has_l {
+                        a[1][d] = f_l / s.mass_l;
+                    }
+                }
+            }
+            *out = a;
+        });
+        self.accel = accel;
+    }
+
+    // -- stage 4 ---------------------------------------------------------
+
+    /// FLIP: v_p += Δt Σ N_I a_I for both sets.
+    fn update_velocities(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let dt = self.params.dt;
+        let accel = &self.accel;
+        for (phase, set, scratch) in
+            [(0, &mut self.state.solid.set, &self.solid_scratch), (1, &mut self.state.liquid.set, &self.liquid_scratch)]
+        {
+            set.v.par_iter_mut().zip(scratch.stencil.par_iter()).with_min_len(CHUNK).for_each(|(v, st)| {
+                let a = st.interpolate(row, |i| accel[i][phase]);
+                v[0] += dt * a[0];
+                v[1] += dt * a[1];
+            });
+        }
+    }
+
+    /// MUSL: the new point momenta mapped back give the nodal velocities the
+    /// points move with; Δu = Δt v′.
+    fn remap_momentum(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let dt = self.params.dt;
+        let tol = self.mass_tolerance;
+        let (solid, liquid) = (&self.state.solid.set, &self.state.liquid.set);
+        let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
+        let (sums, mask) = (&self.sums, &self.mask);
+        let mut disp = std::mem::take(&mut self.disp);
+        self.for_active_nodes(&mut disp, |node, out| {
+            let mut ps = [0.0; 2];
+            let mut pl = [0.0; 2];
+            Self::gather(ss, row, node, |p, n, _| {
+                let m = n * solid.mass[p];
+                ps[0] += m * solid.v[p][0];
+                ps[1] += m * solid.v[p][1];
+            });
+            Self::gather(ls, row, node, |p, n, _| {
+                let m = n * liquid.mass[p];
+                pl[0] += m * liquid.v[p][0];
+                pl[1] += m * liquid.v[p][1];
+            });
+            let s = &sums[node];
+            let k = mask[node];
+            let mut d = [[0.0; 2]; 2];
+            if s.mass_s > tol {
+                d[0] = [dt * k[0] * ps[0] / s.mass_s, dt * k[1] * ps[1] / s.mass_s];
+            }
+            if s.mass_l > tol {
+                d[1] = [dt * k[0] * pl[0] / s.mass_l, dt * k[1] * pl[1] / s.mass_l];
+                if s.mass_s <= tol {
+                    // No solid here: for the mixture balance the solid moves with the liquid.
+                    d[0] = d[1];
+                }
+            }
+            *out = d;
+        });
+        self.disp = disp;
+    }
+
+    /// Δε_w per element with liquid: the mixture continuity at the centroid.
+    fn volumetric_strain_per_element(&mut self) {
+        let grid = self.grid;
+        let row = grid.node_dims()[0];
+        let h = grid.h;
+        let nx = grid.elements[0];
+        let el = &mut self.elements;
+        let (r0, r1) = self.rows;
+        let (c0, c1) = self.columns;
+        for r in r0.max(1)..r1.min(grid.elements[1] + 1) {
+            for col in c0.max(1)..c1.min(nx + 1) {
+                let e = (r - 1) * nx + (col - 1);
+                if el.liquid_points[e] == 0 {
+                    continue;
+                }
+                let n0 = r * row + col;
+                let corners = [n0, n0 + 1, n0 + row, n0 + row + 1];
+                let centroid = |u: &dyn Fn(usize) -> [f64; 2]| -> ([f64; 2], f64) {
+                    let [a, b, d, f] = corners.map(u);
+                    let mean = [0.25 * (a[0] + b[0] + d[0] + f[0]), 0.25 * (a[1] + b[1] + d[1] + f[1])];
+                    let div = ((b[0] - a[0]) + (f[0] - d[0])) / (2.0 * h) + ((d[1] - a[1]) + (f[1] - b[1])) / (2.0 * h);
+                    (mean, div)
+                };
+                let (us, es) = centroid(&|i| self.disp[i][0]);
+                let (ul, elq) = centroid(&|i| self.disp[i][1]);
+                let n = el.porosity[e];
+                let gn = el.grad_porosity[e];
+                el.volumetric_strain[e] =
+                    ((1.0 - n) * es + n * elq + (ul[0] - us[0]) * gn[0] + (ul[1] - us[1]) * gn[1]) / n;
+            }
+        }
+    }
+
+    /// Strain, porosity, state, Mohr–Coulomb stress and position of solid points.
+    fn update_solid_points(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let (lo, hi) = (self.grid.origin, self.grid.far_corner());
+        let p = &self.params;
+        let (rho_s, n_max) = (p.solid_density, p.max_porosity);
+        let soil = &p.soil;
+        let disp = &self.disp;
+        let s = &mut self.state.solid;
+        let st = &self.solid_scratch.stencil;
+        s.set
+            .x
+            .par_iter_mut()
+            .zip(s.set.volume.par_iter_mut())
+            .zip(s.porosity.par_iter_mut())
+            .zip(s.stress.par_iter_mut())
+            .zip(s.fluidised.par_iter_mut())
+            .zip(s.set.mass.par_iter())
+            .zip(st.par_iter())
+            .with_min_len(CHUNK)
+            .for_each(|((((((x, vol), n), sigma), fl), &m), st)| {
+                let de = st.strain(row, |i| disp[i][0]);
+                let dv = de[0] + de[1];
+                *n = (1.0 - (1.0 - *n) / (1.0 + dv)).clamp(POROSITY_BOUNDS.0, POROSITY_BOUNDS.1);
+                *vol = m / ((1.0 - *n) * rho_s);
+                *fl = *n > n_max;
+                if *fl {
+                    *sigma = [0.0; 4];
+                } else {
+                    soil.update(sigma, de);
+                }
+                let du = st.interpolate(row, |i| disp[i][0]);
+                x[0] = (x[0] + du[0]).clamp(lo[0], hi[0]);
+                x[1] = (x[1] + du[1]).clamp(lo[1], hi[1]);
+            });
+    }
+
+    /// Pore pressure, viscous stress, volume and position of liquid points.
+    fn update_liquid_points(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let (lo, hi) = (self.grid.origin, self.grid.far_corner());
+        let p = &self.params;
+        let (k, rho_l, mu, dt, cav, fs_fill) =
+            (p.bulk_modulus, p.liquid_density, p.viscosity, p.dt, p.cavitation, p.free_surface_fill);
+        let disp = &self.disp;
+        let el = &self.elements;
+        let l = &mut self.state.liquid;
+        let scratch = &self.liquid_scratch;
+        let fill = &self.liquid_fill;
+        l.set
+            .x
+            .par_iter_mut()
+            .zip(l.set.volume.par_iter_mut())
+            .zip(l.pressure.par_iter_mut())
+            .zip(l.viscous.par_iter_mut())
+            .zip(l.free_surface.par_iter_mut())
+            .zip(l.set.mass.par_iter())
+            .enumerate()
+            .with_min_len(CHUNK)
+            .for_each(|(i, (((((x, vol), pr), tau), free), &m))| {
+                let st = &scratch.stencil[i];
+                let e = scratch.element[i] as usize;
+                *free = fill[i] < fs_fill;
+                *pr = if *free { 0.0 } else { (*pr - k * el.volumetric_strain[e]).max(-cav) };
+                let de = st.strain(row, |i| disp[i][1]);
+                let (solid_mass, fluidised_mass) = (el.solid_mass_solid[e], el.solid_mass_fluidised[e]);
+                if solid_mass == 0.0 || fluidised_mass > solid_mass {
+                    let c = if solid_mass + fluidised_mass > 0.0 { 1.0 - el.porosity[e] } else { 0.0 };
+                    let mu_eq = mu * (1.0 + 2.5 * c + 5.2 * c * c);
+                    let (exx, ezz, gxz) = (de[0] / dt, de[1] / dt, de[2] / dt);
+                    let mean = (exx + ezz) / 3.0;
+                    *tau = [2.0 * mu_eq * (exx - mean), 2.0 * mu_eq * (ezz - mean), mu_eq * gxz, -2.0 * mu_eq * mean];
+                } else {
+                    *tau = [0.0; 4];
+                }
+                // In free water the point holds water only: V = m/ρ(p). In the
+                // soil its volume follows the liquid's own deformation (a closed
+                // form m/(n ρ_L) would take the smeared element porosity at a
+                // soil–free-water boundary for the point's own).
+                if solid_mass + fluidised_mass == 0.0 {
+                    *vol = m / (rho_l * (1.0 + *pr / k));
+                } else {
+                    *vol *= 1.0 + de[0] + de[1];
+                }
+                let du = st.interpolate(row, |i| disp[i][1]);
+                x[0] = (x[0] + du[0]).clamp(lo[0], hi[0]);
+                x[1] = (x[1] + du[1]).clamp(lo[1], hi[1]);
+            });
+    }
+}

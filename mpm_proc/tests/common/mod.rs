@@ -1,0 +1,64 @@
+//! Scenes the MPM tests build from TOML text (validated like a user's file).
+
+use schemas::Scene;
+
+/// A saturated or dry soil column `width` × `height` (m) in a box `box_height`
+/// tall, with the given `[mpm]` lines and liquid up to `water` (None: dry).
+pub fn column(
+    width: f64,
+    height: f64,
+    box_height: f64,
+    water: Option<f64>,
+    grain: f64,
+    mpm: &str,
+    extra: &[&str],
+) -> Scene {
+    let fluid = match water {
+        Some(top) => format!(
+            "[[fluids]]\nname = \"water\"\ndensity = 1000.0\nviscosity = 1.0e-3\nregion = {{ min = [0.0, 0.0, 0.0], max = [{width}, 0.05, {top}] }}\n"
+        ),
+        None => String::new(),
+    };
+    let condition = if water.is_some() { "saturated" } else { "dry" };
+    let text = format!(
+        r#"
+[scene]
+name = "test_column"
+method = "mpm"
+
+[domain]
+min = [0.0, 0.0, 0.0]
+max = [{width}, 0.05, {box_height}]
+gravity = [0.0, 0.0, -9.81]
+walls = ["x_min", "x_max", "z_min"]
+
+[[particles]]
+name = "soil"
+density = 2600.0
+diameter = {grain}
+
+[particles.packing]
+method = "deposit"
+region = {{ min = [0.0, 0.0, 0.0], max = [{width}, 0.05, {height}] }}
+porosity = 0.4
+seed = 1
+
+{fluid}
+
+[mpm]
+{mpm}
+
+[output]
+end_time = 0.1
+record_interval = 0.01
+stop_at_rest = false
+
+[analysis]
+column_length = {width}
+column_height = {height}
+condition = "{condition}"
+"#
+    );
+    let overrides: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
+    Scene::from_toml_str(&text, std::path::Path::new("."), &overrides).unwrap_or_else(|e| panic!("test scene: {e}"))
+}

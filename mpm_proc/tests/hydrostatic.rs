@@ -1,0 +1,89 @@
+//! A saturated column at rest (reference §10.1): pore pressure ρ_L g (h_w − z),
+//! effective stress −(1 − n)(ρ_s − ρ_L) g (h_s − z) with σ'_h = K0 σ'_v, no drift.
+
+mod common;
+
+use std::sync::atomic::AtomicBool;
+
+use mpm_proc::run::{gravity_phase, Progress};
+use mpm_proc::setup::build;
+
+struct Quiet;
+impl Progress for Quiet {
+    fn gravity_phase(&mut self, _: f64, _: f64) {}
+    fn collapse(&mut self, _: f64, _: f64, _: u64) {}
+    fn log(&mut self, _: &str) {}
+}
+
+const G: f64 = 9.81;
+
+/// Largest |p − ρ_L g (h_w − z)| over the liquid points below the top
+/// element, and the same for σ'_zz and σ'_xx of the solid points, each
+/// divided by its analytic value at the base.
+fn errors(mpm: &mpm_proc::solver::Mpm, h_s: f64, h_w: f64, h: f64) -> (f64, f64, f64) {
+    let (rho_s, rho_l, n) = (2600.0, 1000.0, 0.4);
+    let k0 = 0.3 / 0.7;
+    let l = &mpm.state.liquid;
+    let p_base = rho_l * G * h_w;
+    let mut ep: f64 = 0.0;
+    for (x, p) in l.set.x.iter().zip(&l.pressure) {
+        // The top element's liquid points are on the free surface (p = 0 by rule, docs/mpm.md).
+        if x[1] < h_w - h {
+            ep = ep.max((p - rho_l * G * (h_w - x[1])).abs() / p_base);
+        }
+    }
+    let s = &mpm.state.solid;
+    let sv_base = (1.0 - n) * (rho_s - rho_l) * G * h_s;
+    let (mut ev, mut eh): (f64, f64) = (0.0, 0.0);
+    for (x, sg) in s.set.x.iter().zip(&s.stress) {
+        let sv = -(1.0 - n) * (rho_s - rho_l) * G * (h_s - x[1]);
+        ev = ev.max((sg[1] - sv).abs() / sv_base);
+        eh = eh.max((sg[0] - k0 * sv).abs() / sv_base);
+    }
+    (ep, ev, eh)
+}
+
+fn at_rest(water: f64, box_height: f64) {
+    let h_s = 0.06;
+    let scene = common::column(0.04, h_s, box_height, Some(water), 2.5e-3, "", &[]);
+    let mut setup = build(&scene).unwrap();
+    let mpm = &mut setup.mpm;
+    let h = mpm.grid.h;
+    let gp = gravity_phase(&scene, mpm, &AtomicBool::new(false), &mut Quiet);
+    assert!(gp.steps > 0);
+    let (ep0, ev0, eh0) = errors(mpm, h_s, water, h);
+    let steps = (0.05 / mpm.params.dt) as usize;
+    let mut speed: f64 = 0.0;
+    for _ in 0..steps {
+        mpm.step();
+        speed = speed.max(mpm.state.solid.set.max_speed()).max(mpm.state.liquid.set.max_speed());
+    }
+    let (ep, ev, eh) = errors(mpm, h_s, water, h);
+    eprintln!(
+        "water top {water}: after the gravity phase ({} steps) p {ep0:.4} σ'v {ev0:.4} σ'h {eh0:.4}; after 0.05 s p {ep:.4} σ'v {ev:.4} σ'h {eh:.4}; fastest point {speed:.2e} m/s",
+        gp.steps
+    );
+    // 2 %: the bar. The discrete equilibrium differs from the
+    // layered closed form by the top element's free-surface rule and the
+    // GIMP weights at the column's faces.
+    assert!(ep < 0.02, "pore pressure off by {ep}");
+    assert!(ev < 0.02, "vertical effective stress off by {ev}");
+    assert!(eh < 0.02, "horizontal effective stress off by {eh}");
+    // At rest: no point moves faster than a part in 10^4 of √(g h) (0.77 m/s).
+    assert!(speed < 1e-4, "the column at rest moves at {speed} m/s");
+    // Mass is a point constant.
+    let m0 = (0.4 * 1000.0 + 0.6 * 2600.0) * 0.04 * h_s;
+    let m = mpm.state.solid.set.total_mass() + mpm.state.liquid.set.total_mass();
+    let free_water = 1000.0 * 0.04 * (water - h_s);
+    assert!((m - m0 - free_water).abs() < 1e-12 * m0, "mass {m} vs {}", m0 + free_water);
+}
+
+#[test]
+fn saturated_column_at_rest_is_hydrostatic() {
+    at_rest(0.06, 0.08);
+}
+
+#[test]
+fn free_water_above_the_soil_leaves_the_effective_stress_unchanged() {
+    at_rest(0.076, 0.10);
+}

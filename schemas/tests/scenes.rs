@@ -1,0 +1,77 @@
+//! Every scene file shipped under `scenes/` loads and validates.
+
+use std::path::{Path, PathBuf};
+
+use schemas::{Method, Scene};
+
+fn toml_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            toml_files(&path, out);
+        } else if path.extension().is_some_and(|e| e == "toml") {
+            out.push(path);
+        }
+    }
+}
+
+#[test]
+fn every_scene_loads() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    let mut files = Vec::new();
+    toml_files(&root, &mut files);
+    files.sort();
+    assert!(files.len() >= 30, "found only {} scenes under {}", files.len(), root.display());
+    let mut failures = Vec::new();
+    for f in &files {
+        if let Err(e) = Scene::load(f, &[]) {
+            failures.push(format!("{}:\n{e}", f.display()));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n\n"));
+}
+
+/// The MPM scenes are MPM, name the method explicitly, and their names are unique.
+#[test]
+fn mpm_scenes_are_mpm() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    let mut files = Vec::new();
+    toml_files(&root.join("ceccato2020"), &mut files);
+    toml_files(&root.join("mpm_drag_study"), &mut files);
+    let mut names = std::collections::BTreeSet::new();
+    let mut mpm = 0;
+    for f in &files {
+        let s = Scene::load(f, &[]).unwrap();
+        assert!(names.insert(s.spec.scene.name.clone()), "{}: scene name used twice", f.display());
+        let stem = f.file_stem().unwrap().to_string_lossy();
+        if stem.starts_with("mpm_") || stem.starts_with("drag_") {
+            mpm += 1;
+            assert_eq!(s.method(), Method::Mpm, "{}", f.display());
+            assert_eq!(s.spec.scene.name, stem, "{}: scene.name should be the file name", f.display());
+            assert!(s.spec.mpm.is_some(), "{}: write the [mpm] table out", f.display());
+            // Every point is inside a filled element: the regions are on the grid.
+            let t = s.mpm_time_step();
+            assert!(t.dt > 0.0 && t.steps > 0, "{}: {t:?}", f.display());
+        }
+    }
+    assert_eq!(mpm, 14);
+}
+
+/// Sec. 5.3: the four (D, mu) pairs span Re_p ~ 2e3 .. 2e6.
+#[test]
+fn drag_study_spans_the_reynolds_numbers() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/mpm_drag_study");
+    let mut re: Vec<f64> = ["d025mm_mu0p1", "d250mm_mu0p1", "d025mm_mu0p001", "d250mm_mu0p001"]
+        .iter()
+        .map(|n| {
+            let s = Scene::load(&root.join(format!("drag_s100_{n}.toml")), &[]).unwrap();
+            // Scaled by 100 with the lab's point count.
+            assert_eq!((s.mpm_grid().nx, s.mpm_grid().nz), (175, 30));
+            s.mpm_drag().unwrap().reynolds
+        })
+        .collect();
+    re.sort_by(f64::total_cmp);
+    for (got, want) in re.iter().zip([1.918e3, 1.918e4, 1.918e5, 1.918e6]) {
+        assert!((got / want - 1.0).abs() < 1e-3, "{re:?}");
+    }
+}
