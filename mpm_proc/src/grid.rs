@@ -51,8 +51,10 @@ impl Grid {
 
     /// The element holding `x` (clamped into the box): index e = k·nx + i.
     pub fn element_of(&self, x: [f64; 2]) -> usize {
-        let i = (((x[0] - self.origin[0]) / self.h).floor().max(0.0) as usize).min(self.elements[0] - 1);
-        let k = (((x[1] - self.origin[1]) / self.h).floor().max(0.0) as usize).min(self.elements[1] - 1);
+        // `as usize` truncates toward zero and saturates at 0: the floor of a
+        // coordinate inside the box, without a libm call.
+        let i = (((x[0] - self.origin[0]) / self.h) as usize).min(self.elements[0] - 1);
+        let k = (((x[1] - self.origin[1]) / self.h) as usize).min(self.elements[1] - 1);
         k * self.elements[0] + i
     }
 
@@ -72,31 +74,70 @@ impl Grid {
     /// One axis: stored index of the first of three nodes, their weights and derivatives.
     fn axis(&self, x: f64, x0: f64, elements: usize, half: f64) -> (usize, [f64; 3], [f64; 3]) {
         let h = self.h;
-        let xi = (x - x0) / h;
+        // Reciprocals once per axis: divisions dominated the stencil's cost.
+        let inv_h = 1.0 / h;
+        let xi = (x - x0) * inv_h;
         let mut w = [0.0; 3];
         let mut g = [0.0; 3];
         match self.shape {
             ShapeFunctions::Gimp => {
-                let nearest = (xi.round().max(0.0) as usize).min(elements);
+                // ξ ≥ 0 inside the box: truncating ξ + ½ rounds it.
+                let nearest = ((xi + 0.5) as usize).min(elements);
                 // Stored index of node nearest − 1 (ghost offset GHOST = 1).
                 let base = nearest + GHOST - 1;
+                let k = GimpConstants::new(h, half);
                 for j in 0..3 {
                     let node_x = x0 + (nearest as f64 + j as f64 - 1.0) * h;
-                    let (s, ds) = gimp(x - node_x, h, half);
+                    let (s, ds) = k.eval(x - node_x);
                     w[j] = s;
                     g[j] = ds;
                 }
                 (base, w, g)
             }
             ShapeFunctions::Linear => {
-                let left = (xi.floor().max(0.0) as usize).min(elements - 1);
-                let t = (x - (x0 + left as f64 * h)) / h;
+                let left = (xi as usize).min(elements - 1);
+                let t = xi - left as f64;
                 w[0] = 1.0 - t;
                 w[1] = t;
-                g[0] = -1.0 / h;
-                g[1] = 1.0 / h;
+                g[0] = -inv_h;
+                g[1] = inv_h;
                 (left + GHOST, w, g)
             }
+        }
+    }
+}
+
+/// The uniform GIMP function of element side h and half-width l with its
+/// reciprocals precomputed.
+#[derive(Debug, Clone, Copy)]
+struct GimpConstants {
+    h: f64,
+    l: f64,
+    inv_h: f64,
+    inv_2hl: f64,
+    inv_hl: f64,
+    inv_4hl: f64,
+}
+
+impl GimpConstants {
+    fn new(h: f64, l: f64) -> Self {
+        Self { h, l, inv_h: 1.0 / h, inv_2hl: 0.5 / (h * l), inv_hl: 1.0 / (h * l), inv_4hl: 0.25 / (h * l) }
+    }
+
+    #[inline(always)]
+    fn eval(&self, d: f64) -> (f64, f64) {
+        let (h, l) = (self.h, self.l);
+        let a = d.abs();
+        let sign = if d < 0.0 { -1.0 } else { 1.0 };
+        if a < l {
+            (1.0 - (d * d + l * l) * self.inv_2hl, -d * self.inv_hl)
+        } else if a < h - l {
+            (1.0 - a * self.inv_h, -sign * self.inv_h)
+        } else if a < h + l {
+            let r = h + l - a;
+            (r * r * self.inv_4hl, -sign * r * self.inv_2hl)
+        } else {
+            (0.0, 0.0)
         }
     }
 }

@@ -156,6 +156,10 @@ struct ElementScratch {
     liquid_points: Vec<u32>,
     solid_mass_solid: Vec<f64>,
     solid_mass_fluidised: Vec<f64>,
+    /// Σ m_s/ρ_s and Σ V_s of the solid points in the element: their ratio
+    /// is the skeleton's own porosity there, sharp at a soil–water boundary.
+    grain_volume: Vec<f64>,
+    solid_point_volume: Vec<f64>,
     /// Δε_w of the pressure update.
     volumetric_strain: Vec<f64>,
 }
@@ -185,8 +189,10 @@ pub struct Mpm {
     pub state: MpmState,
     pub fixities: Fixities,
     mask: Vec<[f64; 2]>,
-    /// ∫ N_I over the box per node (h² inside, less on the walls), m².
+    /// ∫ N_I over the box per node (h² inside, less on the walls and on a
+    /// held gate, which bounds the material like a wall), m².
     full_volume: Vec<f64>,
+    box_volume: Vec<f64>,
     solid_scratch: PointScratch,
     liquid_scratch: PointScratch,
     elements: ElementScratch,
@@ -248,6 +254,7 @@ impl Mpm {
         let mut mpm = Mpm {
             params,
             grid,
+            box_volume: full_volume.clone(),
             mask: fixities.base.clone(),
             fixities,
             full_volume,
@@ -259,6 +266,8 @@ impl Mpm {
                 liquid_points: vec![0; ne],
                 solid_mass_solid: vec![0.0; ne],
                 solid_mass_fluidised: vec![0.0; ne],
+                grain_volume: vec![0.0; ne],
+                solid_point_volume: vec![0.0; ne],
                 volumetric_strain: vec![0.0; ne],
             },
             sums: vec![NodeSums::default(); nodes],
@@ -284,10 +293,13 @@ impl Mpm {
     /// Rebuilds the mask from the walls and the gates that still hold.
     pub fn apply_gate_fixities(&mut self) {
         self.mask.copy_from_slice(&self.fixities.base);
+        self.full_volume.copy_from_slice(&self.box_volume);
         for (g, nodes) in self.fixities.gates.iter().enumerate() {
             if self.state.gates_held.get(g).copied().unwrap_or(false) {
                 for &n in nodes {
                     self.mask[n][0] = 0.0;
+                    // Only the material side of the gate counts toward the fill.
+                    self.full_volume[n] = 0.5 * self.box_volume[n];
                 }
             }
         }
@@ -387,6 +399,8 @@ impl Mpm {
         e.liquid_points.fill(0);
         e.solid_mass_solid.fill(0.0);
         e.solid_mass_fluidised.fill(0.0);
+        e.grain_volume.fill(0.0);
+        e.solid_point_volume.fill(0.0);
         for &el in &self.liquid_scratch.element {
             e.liquid_points[el as usize] += 1;
         }
@@ -397,6 +411,8 @@ impl Mpm {
             } else {
                 e.solid_mass_solid[el as usize] += solid.set.mass[p];
             }
+            e.grain_volume[el as usize] += solid.set.mass[p] / self.params.solid_density;
+            e.solid_point_volume[el as usize] += solid.set.volume[p];
         }
     }
 
@@ -794,15 +810,16 @@ impl Mpm {
                 } else {
                     *tau = [0.0; 4];
                 }
-                // In free water the point holds water only: V = m/ρ(p). In the
-                // soil its volume follows the liquid's own deformation (a closed
-                // form m/(n ρ_L) would take the smeared element porosity at a
-                // soil–free-water boundary for the point's own).
-                if solid_mass + fluidised_mass == 0.0 {
-                    *vol = m / (rho_l * (1.0 + *pr / k));
+                // V = m/(n ρ(p)) with n the porosity of the skeleton's own points
+                // in this element (1 in free water): the nodal porosity field is
+                // smeared over an element at a soil–free-water boundary, and
+                // taking it for the point's own mis-states the pressure there.
+                let n_point = if el.solid_point_volume[e] > 0.0 {
+                    (1.0 - el.grain_volume[e] / el.solid_point_volume[e]).max(POROSITY_BOUNDS.0)
                 } else {
-                    *vol *= 1.0 + de[0] + de[1];
-                }
+                    1.0
+                };
+                *vol = m / (n_point * rho_l * (1.0 + *pr / k));
                 let du = st.interpolate(row, |i| disp[i][1]);
                 x[0] = (x[0] + du[0]).clamp(lo[0], hi[0]);
                 x[1] = (x[1] + du[1]).clamp(lo[1], hi[1]);
