@@ -86,13 +86,15 @@ impl Principal {
     /// Closed-form eigen-decomposition of the in-plane 2×2 block plus σ_yy.
     ///
     /// The in-plane eigenvalues are m ± r, r = √(d² + σ_xz²), d = (σ_xx − σ_zz)/2;
-    /// `hypot` keeps r from overflowing, and an in-plane isotropic stress
+    /// r is a plain square root, not `hypot` (which costs a libm call per
+    /// point and step, 4 % of a run): soil stresses are nowhere near the
+    /// 1e154 Pa where d² would overflow. An in-plane isotropic stress
     /// (r = 0) takes θ = 0 instead of 0/0 — any direction is principal.
     fn of(stress: &[f64; 4]) -> Self {
         let [sxx, szz, sxz, syy] = *stress;
         let mean = 0.5 * (sxx + szz);
         let half_diff = 0.5 * (sxx - szz);
-        let radius = half_diff.hypot(sxz);
+        let radius = (half_diff * half_diff + sxz * sxz).sqrt();
         let (cos2, sin2) = if radius > 0.0 { (half_diff / radius, sxz / radius) } else { (1.0, 0.0) };
         let (major, minor) = (mean + radius, mean - radius);
         let (values, yy) = if syy >= major {

@@ -137,6 +137,7 @@ struct Frames {
     /// Largest kinetic energy seen, J/m.
     max_kinetic_energy: f64,
     max_fluidised: f64,
+    max_pore_pressure: f64,
 }
 
 impl Frames {
@@ -228,6 +229,7 @@ fn run_on_pool(
         liquid_front: Vec::new(),
         max_kinetic_energy: 0.0,
         max_fluidised: 0.0,
+        max_pore_pressure: 0.0,
     };
     if opts.record {
         let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
@@ -376,6 +378,7 @@ fn run_on_pool(
             max_kinetic_energy: frames.max_kinetic_energy,
             final_kinetic_energy: s.set.kinetic_energy() + mpm.state.liquid.set.kinetic_energy(),
             fluidised_fraction_max: frames.max_fluidised,
+            max_pore_pressure: frames.max_pore_pressure,
             quadratic_drag: mpm.params.drag.quadratic,
             recording_fraction: frames.seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),
@@ -479,6 +482,8 @@ fn record_frame(
     let ke = (s.set.kinetic_energy(), l.set.kinetic_energy());
     frames.max_kinetic_energy = frames.max_kinetic_energy.max(ke.0 + ke.1);
     frames.max_fluidised = frames.max_fluidised.max(m.fluidised_fraction);
+    let max_p = mpm.state.liquid.pressure.iter().cloned().fold(0.0, f64::max);
+    frames.max_pore_pressure = frames.max_pore_pressure.max(max_p);
     if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
         let solid_fields = |p: usize| {
             let sg = s.stress[p];
@@ -503,7 +508,7 @@ fn record_frame(
             max_speed_solid: s.set.max_speed(),
             max_speed_liquid: l.set.max_speed(),
             fluidised_fraction: m.fluidised_fraction,
-            max_pore_pressure: l.pressure.iter().cloned().fold(0.0, f64::max),
+            max_pore_pressure: max_p,
             mean_porosity: if s.set.is_empty() {
                 f64::NAN
             } else {

@@ -618,6 +618,18 @@ impl Mpm {
             for d in 0..2 {
                 let m = mask[node][d];
                 if m == 0.0 {
+                    // A fixed component ends the step at rest: its "acceleration"
+                    // takes the mapped velocity to zero, so that the FLIP update
+                    // carries the constraint to the points. With a = 0 the points
+                    // on a wall kept their velocity, drifted while the wall held
+                    // their positions, and fed it back through the next map: the
+                    // deposit never came to rest.
+                    if s.mass_s > tol {
+                        a[0][d] = -s.momentum_s[d] / s.mass_s / dt;
+                    }
+                    if s.mass_l > tol {
+                        a[1][d] = -s.momentum_l[d] / s.mass_l / dt;
+                    }
                     continue;
                 }
                 let damp = |f: f64, v: f64| if v != 0.0 { f - alpha * f.abs() * v.signum() } else { f };

@@ -175,6 +175,10 @@ pub struct MpmDetails {
     pub final_kinetic_energy: f64,
     /// Largest fluidised share of the solid mass on the recorded frames.
     pub fluidised_fraction_max: f64,
+    /// Largest pore pressure of any liquid point on the recorded frames, Pa
+    /// (against ρ_L g H0 at rest: the spikes of cell crossings show here).
+    #[serde(default)]
+    pub max_pore_pressure: f64,
     /// Whether the quadratic drag term was on.
     pub quadratic_drag: bool,
     /// Fraction of the run's wall time spent handing frames to the recorder.
