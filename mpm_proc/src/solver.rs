@@ -327,8 +327,7 @@ impl Mpm {
         self.update_velocities();
         self.remap_momentum();
         self.volumetric_strain_per_element();
-        self.update_solid_points();
-        self.update_liquid_points();
+        self.update_points();
         self.state.time += self.params.dt;
         self.state.steps += 1;
         if let (Some(t0), Some(t1), Some(t2), Some(t3)) = (t0, t1, t2, t3) {
@@ -662,15 +661,16 @@ impl Mpm {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
         let accel = &self.accel;
-        for (phase, set, scratch) in
-            [(0, &mut self.state.solid.set, &self.solid_scratch), (1, &mut self.state.liquid.set, &self.liquid_scratch)]
-        {
+        let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
             set.v.par_iter_mut().zip(scratch.stencil.par_iter()).with_min_len(CHUNK).for_each(|(v, st)| {
                 let a = st.interpolate(row, |i| accel[i][phase]);
                 v[0] += dt * a[0];
                 v[1] += dt * a[1];
             });
-        }
+        };
+        let (solid, liquid) = (&mut self.state.solid.set, &mut self.state.liquid.set);
+        let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
+        rayon::join(|| g2p(solid, ss, 0), || g2p(liquid, ls, 1));
     }
 
     /// MUSL: the new point momenta mapped back give the nodal velocities the
@@ -747,16 +747,21 @@ impl Mpm {
         }
     }
 
+    /// Both point sets at once (their updates share nothing but read-only grid data).
+    fn update_points(&mut self) {
+        let Self { grid, params, state, solid_scratch, liquid_scratch, elements, disp, liquid_fill, .. } = self;
+        rayon::join(
+            || Self::update_solid_points(grid, params, &mut state.solid, &solid_scratch.stencil, disp),
+            || Self::update_liquid_points(grid, params, &mut state.liquid, liquid_scratch, elements, disp, liquid_fill),
+        );
+    }
+
     /// Strain, porosity, state, Mohr–Coulomb stress and position of solid points.
-    fn update_solid_points(&mut self) {
-        let row = self.grid.node_dims()[0];
-        let (lo, hi) = (self.grid.origin, self.grid.far_corner());
-        let p = &self.params;
+    fn update_solid_points(grid: &Grid, p: &Params, s: &mut SolidPoints, st: &[Stencil], disp: &[[[f64; 2]; 2]]) {
+        let row = grid.node_dims()[0];
+        let (lo, hi) = (grid.origin, grid.far_corner());
         let (rho_s, n_max) = (p.solid_density, p.max_porosity);
         let soil = &p.soil;
-        let disp = &self.disp;
-        let s = &mut self.state.solid;
-        let st = &self.solid_scratch.stencil;
         s.set
             .x
             .par_iter_mut()
@@ -785,17 +790,19 @@ impl Mpm {
     }
 
     /// Pore pressure, viscous stress, volume and position of liquid points.
-    fn update_liquid_points(&mut self) {
-        let row = self.grid.node_dims()[0];
-        let (lo, hi) = (self.grid.origin, self.grid.far_corner());
-        let p = &self.params;
+    fn update_liquid_points(
+        grid: &Grid,
+        p: &Params,
+        l: &mut LiquidPoints,
+        scratch: &PointScratch,
+        el: &ElementScratch,
+        disp: &[[[f64; 2]; 2]],
+        fill: &[f64],
+    ) {
+        let row = grid.node_dims()[0];
+        let (lo, hi) = (grid.origin, grid.far_corner());
         let (k, rho_l, mu, dt, cav, fs_fill) =
             (p.bulk_modulus, p.liquid_density, p.viscosity, p.dt, p.cavitation, p.free_surface_fill);
-        let disp = &self.disp;
-        let el = &self.elements;
-        let l = &mut self.state.liquid;
-        let scratch = &self.liquid_scratch;
-        let fill = &self.liquid_fill;
         l.set
             .x
             .par_iter_mut()
