@@ -76,6 +76,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         max_porosity: spec.max_porosity,
         damping: spec.damping,
         free_surface_fill: spec.free_surface_fill,
+        pic_fraction: spec.pic_fraction,
         soil: MohrCoulomb::new(
             spec.young_modulus,
             spec.poisson_ratio,

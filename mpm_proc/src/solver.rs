@@ -39,6 +39,8 @@ pub struct Params {
     pub damping: f64,
     /// Filling ratio below which a liquid point is on the free surface.
     pub free_surface_fill: f64,
+    /// PIC share α of the point velocity update: v ← (1 − α) v_FLIP + α v_PIC.
+    pub pic_fraction: f64,
     pub soil: MohrCoulomb,
     pub drag: DragLaw,
 }
@@ -656,16 +658,29 @@ impl Mpm {
 
     // -- stage 4 ---------------------------------------------------------
 
-    /// FLIP: v_p += Δt Σ N_I a_I for both sets.
+    /// FLIP with a PIC share α: v_p ← (1 − α)(v_p + Δt Σ N_I a_I) + α Σ N_I v_I^new,
+    /// v_I^new the end-of-step nodal velocity (zero on fixed components).
     fn update_velocities(&mut self) {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
-        let accel = &self.accel;
+        let alpha = self.params.pic_fraction;
+        let (accel, mask) = (&self.accel, &self.mask);
+        let (vs, vl) = (&self.velocity_s, &self.velocity_l);
         let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
+            let velocity = if phase == 0 { vs } else { vl };
             set.v.par_iter_mut().zip(scratch.stencil.par_iter()).with_min_len(CHUNK).for_each(|(v, st)| {
-                let a = st.interpolate(row, |i| accel[i][phase]);
-                v[0] += dt * a[0];
-                v[1] += dt * a[1];
+                let mut a = [0.0; 2];
+                let mut pic = [0.0; 2];
+                st.for_each(row, |node, n, _| {
+                    let (acc, k, v0) = (accel[node][phase], mask[node], velocity[node]);
+                    a[0] += n * acc[0];
+                    a[1] += n * acc[1];
+                    pic[0] += n * k[0] * (v0[0] + dt * acc[0]);
+                    pic[1] += n * k[1] * (v0[1] + dt * acc[1]);
+                });
+                for d in 0..2 {
+                    v[d] = (1.0 - alpha) * (v[d] + dt * a[d]) + alpha * pic[d];
+                }
             });
         };
         let (solid, liquid) = (&mut self.state.solid.set, &mut self.state.liquid.set);

@@ -29,7 +29,6 @@ fn summary() -> serde_json::Value {
 fn dry_mpm_column_collapses_and_stops() {
     let s = summary();
     assert_eq!(s["method"], "mpm");
-    assert!(s["status"] == "completed" || s["status"] == "at_rest", "{}", s["status"]);
     let mpm = &s["mpm"];
     assert_eq!(mpm["solid_points"].as_u64().unwrap(), 8 * 12 * 12);
     assert_eq!(mpm["liquid_points"].as_u64().unwrap(), 0);
@@ -39,18 +38,28 @@ fn dry_mpm_column_collapses_and_stops() {
     let m = mpm["solid_mass"].as_f64().unwrap();
     assert!((m - 3.744).abs() < 1e-9, "{m}");
     // Bounded energy: the collapse converts potential energy into motion and
-    // dissipates it; by 8 t_ref what moves is a few per cent of the peak.
+    // dissipates it; at rest what moves is a few per cent of the peak.
     let (ke_max, ke_end) = (mpm["max_kinetic_energy"].as_f64().unwrap(), mpm["final_kinetic_energy"].as_f64().unwrap());
     // The released potential energy bounds the peak: m g H0/2 at most.
     assert!(ke_max > 0.0 && ke_max < 3.744 * 9.81 * 0.03, "peak kinetic energy {ke_max} J/m");
     assert!(ke_end < 0.1 * ke_max, "still moving at the end: {ke_end} of {ke_max} J/m");
-    // The front runs out and stops: between 6 and 8 t_ref it moves less than 2 %.
+    // The run ends at rest (at most 1 % of the mass faster than 5 mm/s on
+    // three frames), before 8 t_ref, and the front was still for its last
+    // t_ref (less than 2 % of the runout).
+    assert_eq!(s["status"], "at_rest", "the column never came to rest");
     let front = s["front"].as_array().unwrap();
+    let t_end = front.last().unwrap()["t_norm"].as_f64().unwrap();
+    assert!(t_end < 8.0, "at rest only at {t_end} t_ref");
     let at = |tn: f64| {
         front.iter().find(|f| f["t_norm"].as_f64().unwrap() >= tn).map(|f| f["x_norm"].as_f64().unwrap()).unwrap()
     };
     let runout = s["runout"].as_f64().unwrap();
-    assert!((at(8.0) - at(6.0)).abs() < 0.02 * runout, "front still moving: {} -> {}", at(6.0), at(8.0));
+    assert!(
+        (runout - at(t_end - 1.0)).abs() < 0.02 * runout,
+        "front at {} t_ref: {} -> {runout}",
+        t_end - 1.0,
+        at(t_end - 1.0)
+    );
     // The runout of the a = 1.5 column on a fully rough floor (paper §4.2).
     // Lower bound: a deposit of the column's area L0 H0 against the back
     // wall with its slope at φ = 35° reaches L_f = √(2 L0 H0 / tan φ) =
@@ -121,7 +130,9 @@ fn saturated_mpm_column_runs_out_further_than_the_dry_one() {
     let text = std::fs::read_to_string(saturated_run().join("summary.json")).expect("summary.json written");
     let s: serde_json::Value = serde_json::from_str(&text).unwrap();
     assert_eq!(s["method"], "mpm");
-    assert_eq!(s["status"], "completed");
+    // Not asserted at rest: on 5 mm elements a basal layer still creeps at
+    // 8 t_ref (docs/mpm.md, "Open points"); on 4 mm it stops at 4.2 t_ref.
+    assert!(s["status"] == "completed" || s["status"] == "at_rest", "{}", s["status"]);
     let mpm = &s["mpm"];
     assert_eq!(mpm["solid_points"].as_u64().unwrap(), 1152);
     assert_eq!(mpm["liquid_points"].as_u64().unwrap(), 1152);
@@ -147,14 +158,14 @@ fn saturated_mpm_column_runs_out_further_than_the_dry_one() {
     assert!((runout - at(3.0)).abs() < 0.05 * runout, "front at 3 t_ref {} vs {runout} at 4", at(3.0));
     // Ceccato et al. 2020 §2: for a > 1 the saturated column runs out
     // further than the dry one. The dry MPM column of the same grid and soil
-    // stops at about 1.6 (dry_mpm_column_collapses_and_stops); the saturated one
+    // stops at about 1.4 (dry_mpm_column_collapses_and_stops); the saturated one
     // must go further, and a Mohr–Coulomb soil with φ = 35° cannot run out
     // more than twice as far as dry.
     let dry: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dry_run().join("summary.json")).unwrap()).unwrap();
     let dry_runout = dry["runout"].as_f64().unwrap();
     assert!(runout > 1.05 * dry_runout && runout < 2.0 * dry_runout, "saturated {runout}, dry {dry_runout}");
-    // Liquid leaves the gate too: its front is past the gate by 4 t_ref.
+    // Liquid leaves the gate too: its front is a column length past the gate.
     let liquid = s["liquid_front"].as_array().unwrap();
     let lf = liquid.last().unwrap()["x_norm"].as_f64().unwrap();
     assert!(lf > 1.0, "liquid front {lf}");
