@@ -33,10 +33,13 @@ fn errors(mpm: &mpm_proc::solver::Mpm, h_s: f64, h_w: f64, h: f64) -> (f64, f64,
         }
     }
     let s = &mpm.state.solid;
-    let sv_base = (1.0 - n) * (rho_s - rho_l) * G * h_s;
+    // Layered column: the grains' weight from above, less the buoyancy of
+    // the part below the water table (a dry top when h_w < h_s).
+    let effective = |z: f64| -(1.0 - n) * G * (rho_s * (h_s - z) - rho_l * (h_w.min(h_s) - z).max(0.0));
+    let sv_base = -effective(0.0);
     let (mut ev, mut eh): (f64, f64) = (0.0, 0.0);
     for (x, sg) in s.set.x.iter().zip(&s.stress) {
-        let sv = -(1.0 - n) * (rho_s - rho_l) * G * (h_s - x[1]);
+        let sv = effective(x[1]);
         ev = ev.max((sg[1] - sv).abs() / sv_base);
         eh = eh.max((sg[0] - k0 * sv).abs() / sv_base);
     }
@@ -74,7 +77,9 @@ fn at_rest(water: f64, box_height: f64) {
     // Mass is a point constant.
     let m0 = (0.4 * 1000.0 + 0.6 * 2600.0) * 0.04 * h_s;
     let m = mpm.state.solid.set.total_mass() + mpm.state.liquid.set.total_mass();
-    let free_water = 1000.0 * 0.04 * (water - h_s);
+    // Liquid beyond the soil top is free water (n = 1); a dry top holds none.
+    let m0 = m0 - 0.4 * 1000.0 * 0.04 * (h_s - water).max(0.0);
+    let free_water = 1000.0 * 0.04 * (water - h_s).max(0.0);
     assert!((m - m0 - free_water).abs() < 1e-12 * m0, "mass {m} vs {}", m0 + free_water);
 }
 
@@ -86,4 +91,12 @@ fn saturated_column_at_rest_is_hydrostatic() {
 #[test]
 fn free_water_above_the_soil_leaves_the_effective_stress_unchanged() {
     at_rest(0.076, 0.10);
+}
+
+#[test]
+fn a_dry_top_above_the_water_table_carries_its_full_weight() {
+    // Water table at 0.04 m in a 0.06 m column: the top 2 cm are dry soil
+    // (solid points only), whose full weight (1 − n) ρ_s g loads the
+    // saturated part below.
+    at_rest(0.04, 0.08);
 }
