@@ -344,6 +344,10 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
         m.damping,
         m.top_load
     );
+    println!(
+        "transfer     FLIP with a PIC share of {} per step, MUSL (pure FLIP, 0, never lets a deposit rest; docs/mpm.md)",
+        m.pic_fraction
+    );
 }
 
 /// Lattice updates per second of the LBM on this machine, 2 threads
