@@ -77,6 +77,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         damping: spec.damping,
         free_surface_fill: spec.free_surface_fill,
         pic_fraction: spec.pic_fraction,
+        xpic_order: spec.xpic_order,
         soil: MohrCoulomb::new(
             spec.young_modulus,
             spec.poisson_ratio,

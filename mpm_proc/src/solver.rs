@@ -41,6 +41,10 @@ pub struct Params {
     pub free_surface_fill: f64,
     /// PIC share α of the point velocity update: v ← (1 − α) v_FLIP + α v_PIC.
     pub pic_fraction: f64,
+    /// 1: the share α blends plain PIC; 2: XPIC(2) (Hammerquist & Nairn
+    /// 2017), which removes α of the null-space part of the point velocities
+    /// while damping resolved motion far less.
+    pub xpic_order: u32,
     pub soil: MohrCoulomb,
     pub drag: DragLaw,
 }
@@ -208,6 +212,9 @@ pub struct Mpm {
     accel: Vec<[[f64; 2]; 2]>,
     disp: Vec<[[f64; 2]; 2]>,
     liquid_fill: Vec<f64>,
+    /// XPIC(2): S⁺v_g at the points of each set, and its map back to the nodes.
+    xpic_points: [Vec<[f64; 2]>; 2],
+    xpic_nodes: Vec<[[f64; 2]; 2]>,
     /// Node rows and columns touched by any stencil this step (inclusive).
     rows: (usize, usize),
     columns: (usize, usize),
@@ -281,6 +288,8 @@ impl Mpm {
             accel: vec![[[0.0; 2]; 2]; nodes],
             disp: vec![[[0.0; 2]; 2]; nodes],
             liquid_fill: Vec::new(),
+            xpic_points: [Vec::new(), Vec::new()],
+            xpic_nodes: vec![[[0.0; 2]; 2]; nodes],
             rows: (0, 0),
             columns: (0, 0),
             mass_tolerance: if min_mass.is_finite() { 1e-6 * min_mass } else { 0.0 },
@@ -659,8 +668,15 @@ impl Mpm {
     // -- stage 4 ---------------------------------------------------------
 
     /// FLIP with a PIC share α: v_p ← (1 − α)(v_p + Δt Σ N_I a_I) + α Σ N_I v_I^new,
-    /// v_I^new the end-of-step nodal velocity (zero on fixed components).
+    /// v_I^new the end-of-step nodal velocity (zero on fixed components);
+    /// with `xpic_order` 2, v_p ← v_p + Δt Σ N_I a_I − α Q² v_p instead,
+    /// Q = I − S⁺S the part of the point velocities the grid cannot carry
+    /// (PIC is v_FLIP − Q v_p).
     fn update_velocities(&mut self) {
+        if self.params.xpic_order >= 2 && self.params.pic_fraction > 0.0 {
+            self.update_velocities_xpic2();
+            return;
+        }
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
         let alpha = self.params.pic_fraction;
@@ -686,6 +702,75 @@ impl Mpm {
         let (solid, liquid) = (&mut self.state.solid.set, &mut self.state.liquid.set);
         let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
         rayon::join(|| g2p(solid, ss, 0), || g2p(liquid, ls, 1));
+    }
+
+    /// XPIC(2): w1 = S⁺v_g (v_g the mapped nodal velocity, fixities applied),
+    /// w2 = S⁺S w1, Q² v = v − 2 w1 + w2, and v ← v_FLIP − α Q² v.
+    fn update_velocities_xpic2(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let dt = self.params.dt;
+        let alpha = self.params.pic_fraction;
+        let tol = self.mass_tolerance;
+        let sums = &self.sums;
+        // The mapped nodal velocities, with the fixities (as the PIC branch).
+        let velocity = [&self.velocity_s, &self.velocity_l];
+        // w1 at the points.
+        let mut w = std::mem::take(&mut self.xpic_points);
+        for (phase, scratch) in [(0, &self.solid_scratch), (1, &self.liquid_scratch)] {
+            w[phase].resize(scratch.stencil.len(), [0.0; 2]);
+            w[phase].par_iter_mut().zip(scratch.stencil.par_iter()).with_min_len(CHUNK).for_each(|(w1, st)| {
+                *w1 = st.interpolate(row, |i| velocity[phase][i]);
+            });
+        }
+        // S w1 at the nodes: its mass-weighted map.
+        let (solid, liquid) = (&self.state.solid.set, &self.state.liquid.set);
+        let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
+        let mut back = std::mem::take(&mut self.xpic_nodes);
+        self.for_active_nodes(&mut back, |node, out| {
+            let s = &sums[node];
+            let mut acc = [[0.0; 2]; 2];
+            Self::gather(ss, row, node, |p, n, _| {
+                let m = n * solid.mass[p];
+                acc[0][0] += m * w[0][p][0];
+                acc[0][1] += m * w[0][p][1];
+            });
+            Self::gather(ls, row, node, |p, n, _| {
+                let m = n * liquid.mass[p];
+                acc[1][0] += m * w[1][p][0];
+                acc[1][1] += m * w[1][p][1];
+            });
+            for (phase, mass) in [(0, s.mass_s), (1, s.mass_l)] {
+                acc[phase] = if mass > tol { [acc[phase][0] / mass, acc[phase][1] / mass] } else { [0.0; 2] };
+            }
+            *out = acc;
+        });
+        let accel = &self.accel;
+        let back_ref = &back;
+        let w_ref = &w;
+        let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
+            set.v.par_iter_mut().zip(scratch.stencil.par_iter()).enumerate().with_min_len(CHUNK).for_each(
+                |(p, (v, st))| {
+                    let mut a = [0.0; 2];
+                    let mut w2 = [0.0; 2];
+                    st.for_each(row, |node, n, _| {
+                        let (acc, b) = (accel[node][phase], back_ref[node][phase]);
+                        a[0] += n * acc[0];
+                        a[1] += n * acc[1];
+                        w2[0] += n * b[0];
+                        w2[1] += n * b[1];
+                    });
+                    let w1 = w_ref[phase][p];
+                    for d in 0..2 {
+                        let null_part = v[d] - 2.0 * w1[d] + w2[d];
+                        v[d] += dt * a[d] - alpha * null_part;
+                    }
+                },
+            );
+        };
+        let (solid, liquid) = (&mut self.state.solid.set, &mut self.state.liquid.set);
+        rayon::join(|| g2p(solid, ss, 0), || g2p(liquid, ls, 1));
+        self.xpic_points = w;
+        self.xpic_nodes = back;
     }
 
     /// MUSL: the new point momenta mapped back give the nodal velocities the
