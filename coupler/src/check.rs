@@ -345,8 +345,9 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
         m.top_load
     );
     println!(
-        "transfer     FLIP with a PIC share of {} per step, MUSL (pure FLIP, 0, never lets a deposit rest; docs/mpm.md)",
-        m.pic_fraction
+        "transfer     FLIP less {} of the grid-invisible velocity per step ({}), MUSL (pure FLIP, 0, never lets a deposit rest; docs/mpm.md)",
+        m.pic_fraction,
+        if m.xpic_order >= 2 { "XPIC(2)" } else { "PIC blend" }
     );
 }
 

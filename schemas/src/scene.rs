@@ -312,7 +312,7 @@ pub struct MpmSpec {
     /// grid cannot see: next to the rough floor they grew to 1 m/s while the
     /// points moved at 1 cm/s, and no deposit came to rest. Default 0.001:
     /// the lab columns then stop by 5 t_ref; 0.01 already takes a third of
-    /// the saturated column's peak kinetic energy (docs/mpm.md, "FLIP and PIC").
+    /// the saturated column's peak kinetic energy (docs/mpm.md, "FLIP, XPIC and fixed nodes").
     #[serde(default = "default_mpm_pic")]
     pub pic_fraction: f64,
     /// How the share `pic_fraction` is taken: 1, plain PIC blended into
