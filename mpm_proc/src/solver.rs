@@ -154,6 +154,15 @@ impl PointScratch {
     }
 }
 
+/// What the node solve leaves for the point update.
+#[derive(Debug, Clone, Copy, Default)]
+struct NodeUpdate {
+    /// Acceleration of [solid, liquid], m/s².
+    a: [[f64; 2]; 2],
+    /// XPIC(2): S w1, the mass-weighted map of the points' S⁺v_g, m/s.
+    filtered: [[f64; 2]; 2],
+}
+
 /// Per-element fields.
 #[derive(Debug, Default)]
 struct ElementScratch {
@@ -209,12 +218,11 @@ pub struct Mpm {
     solid_fraction: Vec<f64>,
     fill: Vec<f64>,
     /// Nodal accelerations and displacement increments, [solid, liquid].
-    accel: Vec<[[f64; 2]; 2]>,
+    accel: Vec<NodeUpdate>,
     disp: Vec<[[f64; 2]; 2]>,
     liquid_fill: Vec<f64>,
-    /// XPIC(2): S⁺v_g at the points of each set, and its map back to the nodes.
+    /// XPIC(2): S⁺v_g at the points of each set.
     xpic_points: [Vec<[f64; 2]>; 2],
-    xpic_nodes: Vec<[[f64; 2]; 2]>,
     /// Node rows and columns touched by any stencil this step (inclusive).
     rows: (usize, usize),
     columns: (usize, usize),
@@ -285,11 +293,10 @@ impl Mpm {
             relative: vec![[0.0; 2]; nodes],
             solid_fraction: vec![0.0; nodes],
             fill: vec![0.0; nodes],
-            accel: vec![[[0.0; 2]; 2]; nodes],
+            accel: vec![NodeUpdate::default(); nodes],
             disp: vec![[[0.0; 2]; 2]; nodes],
             liquid_fill: Vec::new(),
             xpic_points: [Vec::new(), Vec::new()],
-            xpic_nodes: vec![[[0.0; 2]; 2]; nodes],
             rows: (0, 0),
             columns: (0, 0),
             mass_tolerance: if min_mass.is_finite() { 1e-6 * min_mass } else { 0.0 },
@@ -553,28 +560,58 @@ impl Mpm {
         let drag = &self.params.drag;
         let relative = &self.relative;
         let liquid_points = &self.elements.liquid_points;
+        let xpic = self.xpic_active();
+        let (vs, vl) = (&self.velocity_s, &self.velocity_l);
+        let [w_s, w_l] = &mut self.xpic_points;
         let ss = &mut self.solid_scratch;
         ss.force.resize(solid.set.len(), [0.0; 6]);
-        ss.force.par_iter_mut().enumerate().with_min_len(CHUNK).for_each(|(p, f)| {
+        w_s.resize(if xpic { solid.set.len() } else { 0 }, [0.0; 2]);
+        let solid_point = |p: usize, f: &mut [f64; 6]| -> [f64; 2] {
             let st = &ss.stencil[p];
             let v = solid.set.volume[p];
             let s = solid.stress[p];
+            let mut w1 = [0.0; 2];
             let q = if liquid_points[ss.element[p] as usize] > 0 {
-                let w = st.interpolate(row, |i| relative[i]);
+                let mut w = [0.0; 2];
+                st.for_each(row, |node, n, _| {
+                    w[0] += n * relative[node][0];
+                    w[1] += n * relative[node][1];
+                    w1[0] += n * vs[node][0];
+                    w1[1] += n * vs[node][1];
+                });
                 v * drag.coefficient(solid.porosity[p], (w[0] * w[0] + w[1] * w[1]).sqrt())
             } else {
+                if xpic {
+                    w1 = st.interpolate(row, |i| vs[i]);
+                }
                 0.0
             };
             *f = [s[0] * v, s[1] * v, s[2] * v, q, 0.0, 0.0];
-        });
+            w1
+        };
+        if xpic {
+            ss.force.par_iter_mut().zip(w_s.par_iter_mut()).enumerate().with_min_len(CHUNK).for_each(|(p, (f, w))| {
+                *w = solid_point(p, f);
+            });
+        } else {
+            ss.force.par_iter_mut().enumerate().with_min_len(CHUNK).for_each(|(p, f)| {
+                solid_point(p, f);
+            });
+        }
         let liquid = &self.state.liquid;
         let fill = &self.fill;
         let el = &self.elements;
         let ls = &mut self.liquid_scratch;
         ls.force.resize(liquid.set.len(), [0.0; 6]);
         self.liquid_fill.resize(liquid.set.len(), 0.0);
-        ls.force.par_iter_mut().zip(self.liquid_fill.par_iter_mut()).enumerate().with_min_len(CHUNK).for_each(
-            |(p, (f, fl))| {
+        w_l.resize(liquid.set.len(), [0.0; 2]);
+        ls.force
+            .par_iter_mut()
+            .zip(self.liquid_fill.par_iter_mut())
+            .zip(w_l.par_iter_mut())
+            .enumerate()
+            .with_min_len(CHUNK)
+            .for_each(|(p, ((f, fl), w1))| {
                 let st = &ls.stencil[p];
                 let e = ls.element[p] as usize;
                 let (n, gn) = (el.porosity[e], el.grad_porosity[e]);
@@ -584,10 +621,15 @@ impl Mpm {
                 let (sxx, szz, sxz) = (t[0] - pr, t[1] - pr, t[2]);
                 *f = [sxx * v, szz * v, sxz * v, n, (sxx * gn[0] + sxz * gn[1]) * v, (sxz * gn[0] + szz * gn[1]) * v];
                 let mut w = 0.0;
-                st.for_each(row, |node, n, _| w += n * fill[node]);
+                let mut u = [0.0; 2];
+                st.for_each(row, |node, n, _| {
+                    w += n * fill[node];
+                    u[0] += n * vl[node][0];
+                    u[1] += n * vl[node][1];
+                });
                 *fl = w;
-            },
-        );
+                *w1 = u;
+            });
     }
 
     /// Nodal forces, local damping, drag implicit per node, accelerations.
@@ -599,11 +641,14 @@ impl Mpm {
         let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
         let (sums, mask, vs_all, vl_all) = (&self.sums, &self.mask, &self.velocity_s, &self.velocity_l);
         let tol = self.mass_tolerance;
+        let xpic = self.xpic_active();
+        let [w_s, w_l] = &self.xpic_points;
         let mut accel = std::mem::take(&mut self.accel);
         self.for_active_nodes(&mut accel, |node, out| {
             let mut fs = [0.0; 2];
             let mut fl = [0.0; 2];
             let mut q = 0.0;
+            let mut back = [[0.0; 2]; 2];
             Self::gather(ss, row, node, |pt, n, gr| {
                 let f = &ss.force[pt];
                 let m = solid.set.mass[pt];
@@ -611,10 +656,18 @@ impl Mpm {
                 fs[0] += n * (m * g[0] + load[0]) - (f[0] * gr[0] + f[2] * gr[1]);
                 fs[1] += n * (m * g[1] + load[1]) - (f[2] * gr[0] + f[1] * gr[1]);
                 q += n * f[3];
+                if xpic {
+                    back[0][0] += n * m * w_s[pt][0];
+                    back[0][1] += n * m * w_s[pt][1];
+                }
             });
             Self::gather(ls, row, node, |pt, n, gr| {
                 let f = &ls.force[pt];
                 let m = liquid.set.mass[pt];
+                if xpic {
+                    back[1][0] += n * m * w_l[pt][0];
+                    back[1][1] += n * m * w_l[pt][1];
+                }
                 let porosity = f[3];
                 let div = [f[0] * gr[0] + f[2] * gr[1], f[2] * gr[0] + f[1] * gr[1]];
                 fl[0] += n * m * g[0] - porosity * div[0] - n * f[4];
@@ -660,9 +713,17 @@ impl Mpm {
                     }
                 }
             }
-            *out = a;
+            for (phase, mass) in [(0, s.mass_s), (1, s.mass_l)] {
+                back[phase] = if mass > tol { [back[phase][0] / mass, back[phase][1] / mass] } else { [0.0; 2] };
+            }
+            *out = NodeUpdate { a, filtered: back };
         });
         self.accel = accel;
+    }
+
+    /// Whether the point update filters with XPIC(2).
+    fn xpic_active(&self) -> bool {
+        self.params.xpic_order >= 2 && self.params.pic_fraction > 0.0
     }
 
     // -- stage 4 ---------------------------------------------------------
@@ -673,7 +734,7 @@ impl Mpm {
     /// Q = I − S⁺S the part of the point velocities the grid cannot carry
     /// (PIC is v_FLIP − Q v_p).
     fn update_velocities(&mut self) {
-        if self.params.xpic_order >= 2 && self.params.pic_fraction > 0.0 {
+        if self.xpic_active() {
             self.update_velocities_xpic2();
             return;
         }
@@ -688,7 +749,7 @@ impl Mpm {
                 let mut a = [0.0; 2];
                 let mut pic = [0.0; 2];
                 st.for_each(row, |node, n, _| {
-                    let (acc, k, v0) = (accel[node][phase], mask[node], velocity[node]);
+                    let (acc, k, v0) = (accel[node].a[phase], mask[node], velocity[node]);
                     a[0] += n * acc[0];
                     a[1] += n * acc[1];
                     pic[0] += n * k[0] * (v0[0] + dt * acc[0]);
@@ -704,62 +765,29 @@ impl Mpm {
         rayon::join(|| g2p(solid, ss, 0), || g2p(liquid, ls, 1));
     }
 
-    /// XPIC(2): w1 = S⁺v_g (v_g the mapped nodal velocity, fixities applied),
-    /// w2 = S⁺S w1, Q² v = v − 2 w1 + w2, and v ← v_FLIP − α Q² v.
+    /// XPIC(2): w1 = S⁺v_g (v_g the mapped nodal velocity, fixities applied;
+    /// at the points in `prepare_forces`), S w1 at the nodes (in
+    /// `solve_nodes`), w2 = S⁺S w1, Q² v = v − 2 w1 + w2, and
+    /// v ← v_FLIP − α Q² v. Both maps ride on loops the step runs anyway.
     fn update_velocities_xpic2(&mut self) {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
         let alpha = self.params.pic_fraction;
-        let tol = self.mass_tolerance;
-        let sums = &self.sums;
-        // The mapped nodal velocities, with the fixities (as the PIC branch).
-        let velocity = [&self.velocity_s, &self.velocity_l];
-        // w1 at the points.
-        let mut w = std::mem::take(&mut self.xpic_points);
-        for (phase, scratch) in [(0, &self.solid_scratch), (1, &self.liquid_scratch)] {
-            w[phase].resize(scratch.stencil.len(), [0.0; 2]);
-            w[phase].par_iter_mut().zip(scratch.stencil.par_iter()).with_min_len(CHUNK).for_each(|(w1, st)| {
-                *w1 = st.interpolate(row, |i| velocity[phase][i]);
-            });
-        }
-        // S w1 at the nodes: its mass-weighted map.
-        let (solid, liquid) = (&self.state.solid.set, &self.state.liquid.set);
-        let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
-        let mut back = std::mem::take(&mut self.xpic_nodes);
-        self.for_active_nodes(&mut back, |node, out| {
-            let s = &sums[node];
-            let mut acc = [[0.0; 2]; 2];
-            Self::gather(ss, row, node, |p, n, _| {
-                let m = n * solid.mass[p];
-                acc[0][0] += m * w[0][p][0];
-                acc[0][1] += m * w[0][p][1];
-            });
-            Self::gather(ls, row, node, |p, n, _| {
-                let m = n * liquid.mass[p];
-                acc[1][0] += m * w[1][p][0];
-                acc[1][1] += m * w[1][p][1];
-            });
-            for (phase, mass) in [(0, s.mass_s), (1, s.mass_l)] {
-                acc[phase] = if mass > tol { [acc[phase][0] / mass, acc[phase][1] / mass] } else { [0.0; 2] };
-            }
-            *out = acc;
-        });
         let accel = &self.accel;
-        let back_ref = &back;
-        let w_ref = &w;
+        let w = &self.xpic_points;
         let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
             set.v.par_iter_mut().zip(scratch.stencil.par_iter()).enumerate().with_min_len(CHUNK).for_each(
                 |(p, (v, st))| {
                     let mut a = [0.0; 2];
                     let mut w2 = [0.0; 2];
                     st.for_each(row, |node, n, _| {
-                        let (acc, b) = (accel[node][phase], back_ref[node][phase]);
-                        a[0] += n * acc[0];
-                        a[1] += n * acc[1];
-                        w2[0] += n * b[0];
-                        w2[1] += n * b[1];
+                        let u = &accel[node];
+                        a[0] += n * u.a[phase][0];
+                        a[1] += n * u.a[phase][1];
+                        w2[0] += n * u.filtered[phase][0];
+                        w2[1] += n * u.filtered[phase][1];
                     });
-                    let w1 = w_ref[phase][p];
+                    let w1 = w[phase][p];
                     for d in 0..2 {
                         let null_part = v[d] - 2.0 * w1[d] + w2[d];
                         v[d] += dt * a[d] - alpha * null_part;
@@ -768,9 +796,8 @@ impl Mpm {
             );
         };
         let (solid, liquid) = (&mut self.state.solid.set, &mut self.state.liquid.set);
+        let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
         rayon::join(|| g2p(solid, ss, 0), || g2p(liquid, ls, 1));
-        self.xpic_points = w;
-        self.xpic_nodes = back;
     }
 
     /// MUSL: the new point momenta mapped back give the nodal velocities the
