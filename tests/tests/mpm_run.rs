@@ -170,3 +170,30 @@ fn saturated_mpm_column_runs_out_further_than_the_dry_one() {
     let lf = liquid.last().unwrap()["x_norm"].as_f64().unwrap();
     assert!(lf > 1.0, "liquid front {lf}");
 }
+
+#[test]
+fn method_flag_runs_a_dem_lbm_column_scene_with_the_mpm() {
+    // The DEM–LBM saturated column, unchanged, run by the MPM for 0.05 s:
+    // its particle block becomes the soil (n0 = the DEM's target porosity
+    // 0.42) and its fluid block the pore water; no [mpm] table, so defaults.
+    let out = coupler_run(
+        "mpm_method_flag",
+        "scenes/ceccato2020/sat_h060.toml",
+        &["--method", "mpm", "--set", "output.end_time=0.05"],
+    );
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["method"], "mpm");
+    assert_eq!(s["status"], "completed");
+    assert!((s["porosity_initial"].as_f64().unwrap() - 0.42).abs() < 1e-12);
+    let mpm = &s["mpm"];
+    // 10 x 15 elements of 4 mm, 12 points of each phase in each.
+    assert_eq!(mpm["solid_points"].as_u64().unwrap(), 1800);
+    assert_eq!(mpm["liquid_points"].as_u64().unwrap(), 1800);
+    // (1 − 0.42) · 2600 and 0.42 · 1000 kg/m³ over 0.04 × 0.06 m.
+    let (ms, ml) = (mpm["solid_mass"].as_f64().unwrap(), mpm["liquid_mass"].as_f64().unwrap());
+    assert!((ms - 0.58 * 2600.0 * 0.0024).abs() < 1e-9 && (ml - 0.42 * 1000.0 * 0.0024).abs() < 1e-9, "{ms} {ml}");
+    // The column has started to collapse past the gate.
+    assert!(s["runout"].as_f64().unwrap() > 0.05);
+    assert!(out.join("run.mcap").exists());
+}
