@@ -197,3 +197,26 @@ fn method_flag_runs_a_dem_lbm_column_scene_with_the_mpm() {
     assert!(s["runout"].as_f64().unwrap() > 0.05);
     assert!(out.join("run.mcap").exists());
 }
+
+#[test]
+fn solvers_refuse_scenes_of_another_method_with_the_fix() {
+    use integration_tests::{binary, repo_root};
+    let run = |bin: &str, scene: &str| {
+        std::process::Command::new(binary(bin))
+            .current_dir(repo_root())
+            .args(["run", scene, "--out"])
+            .arg(integration_tests::scratch_dir(&format!("refuse_{bin}")))
+            .output()
+            .expect("starts")
+    };
+    // mpm_proc on a DEM scene: exit 2, says how to select the MPM.
+    let o = run("mpm_proc", "scenes/ceccato2020/dry_h060.toml");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("--method mpm") && err.contains("method = \"mpm\""), "{err}");
+    // dem_proc on an MPM scene (which has no [dem] table): exit 2, no panic.
+    let o = run("dem_proc", "scenes/ceccato2020/mpm_dry_h060.toml");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("selects the MPM") && !err.contains("panicked"), "{err}");
+}
