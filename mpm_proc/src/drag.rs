@@ -75,9 +75,7 @@ impl DragLaw {
     /// (0.05, 0.95) so κ stays finite (Anura3D caps at 0.95).
     /// Post: finite and > 0 for any finite `porosity` (NaN propagates).
     pub fn permeability(&self, porosity: f64) -> f64 {
-        let n = clamp_skeleton(porosity);
-        let solid = 1.0 - n;
-        self.grain_diameter * self.grain_diameter * n * n * n / (self.ergun_a * solid * solid)
+        schemas::mpm::permeability(self.grain_diameter, clamp_skeleton(porosity), self.ergun_a)
     }
 
     /// Non-Darcy (Forchheimer) coefficient β = B / √(κ A n³), 1/m (Eq. 8),
@@ -96,23 +94,13 @@ impl DragLaw {
     /// coefficient = μ n²/κ + [quadratic] β n³ ρ_L |v_L − v_S|.
     ///
     /// `relative_speed` = |v_L − v_S| [m/s] (its sign is ignored). The one
-    /// porosity is used both in the prefactors and inside κ, β; see
-    /// [`Self::coefficient_split`] for Anura3D's split.
+    /// porosity sets the prefactors (clamped to [0, 1]) and κ, β (clamped
+    /// to [MIN_POROSITY, MAX_POROSITY]); Anura3D takes the prefactors' from
+    /// the liquid mapped to the solid point (`mpm-2pdp.md` §3), equal to it
+    /// in saturated soil.
     /// Post: finite and ≥ 0; 0 only for a porosity ≤ 0.
     pub fn coefficient(&self, porosity: f64, relative_speed: f64) -> f64 {
-        self.coefficient_split(porosity, porosity, relative_speed)
-    }
-
-    /// [`Self::coefficient`] with the liquid fraction of the prefactors
-    /// (`liquid_fraction`, Anura3D's n_L,p: the liquid mapped to the solid
-    /// point, capped at its porosity) separate from the skeleton porosity
-    /// that sets κ and β (`porosity`, Anura3D's n_p) — `mpm-2pdp.md` §3,
-    /// [A3D MPMDYN2PhaseSP:FormMatrices]. N·s/m⁴.
-    ///
-    /// `liquid_fraction` is clamped to [0, 1], `porosity` to
-    /// [MIN_POROSITY, MAX_POROSITY].
-    pub fn coefficient_split(&self, liquid_fraction: f64, porosity: f64, relative_speed: f64) -> f64 {
-        let nl = clamp_fraction(liquid_fraction);
+        let nl = clamp_fraction(porosity);
         let linear = self.viscosity * nl * nl / self.permeability(porosity);
         if self.quadratic {
             linear + self.beta(porosity) * nl * nl * nl * self.liquid_density * relative_speed.abs()
@@ -123,32 +111,17 @@ impl DragLaw {
 
     /// d|f_d|/d|w|, N·s/m⁴: the tangent of |f_d| = coefficient(|w|)·|w|, i.e.
     /// the linear part plus *twice* the quadratic part. Explicit stability
-    /// and implicit Jacobians need this, not the secant
-    /// [`Self::coefficient`] (`mpm-2pdp.md` §3: Δt·Q(1/M_L + 1/M_S) < 2 with
-    /// the quadratic part at its tangent value 2ρ_Lβn³|w|).
+    /// needs this, not the secant [`Self::coefficient`] (`mpm-2pdp.md` §3:
+    /// Δt·Q(1/M_L + 1/M_S) < 2 with the quadratic part at its tangent value
+    /// 2ρ_Lβn³|w|).
     pub fn tangent_coefficient(&self, porosity: f64, relative_speed: f64) -> f64 {
-        self.tangent_coefficient_split(porosity, porosity, relative_speed)
-    }
-
-    /// [`Self::tangent_coefficient`] with the porosity split of
-    /// [`Self::coefficient_split`]. N·s/m⁴.
-    pub fn tangent_coefficient_split(&self, liquid_fraction: f64, porosity: f64, relative_speed: f64) -> f64 {
-        let nl = clamp_fraction(liquid_fraction);
+        let nl = clamp_fraction(porosity);
         let linear = self.viscosity * nl * nl / self.permeability(porosity);
         if self.quadratic {
             linear + 2.0 * self.beta(porosity) * nl * nl * nl * self.liquid_density * relative_speed.abs()
         } else {
             linear
         }
-    }
-
-    /// Drag force per unit mixture volume on the **solid**, N/m³:
-    /// f_d = coefficient(n, |w|) · w with w = v_L − v_S [m/s] (Eq. 7). The
-    /// liquid feels −f_d.
-    pub fn force(&self, porosity: f64, relative_velocity: [f64; 2]) -> [f64; 2] {
-        let speed = relative_velocity[0].hypot(relative_velocity[1]);
-        let q = self.coefficient(porosity, speed);
-        [q * relative_velocity[0], q * relative_velocity[1]]
     }
 
     /// Hydraulic conductivity k = κ ρ_L g / μ, m/s, with `gravity` = |g|
@@ -342,18 +315,8 @@ mod tests {
     }
 
     #[test]
-    fn split_porosity_and_force() {
-        // Equal porosities reduce to the one-porosity form exactly.
-        assert_eq!(LAB.coefficient_split(N_LAB, N_LAB, 0.2), LAB.coefficient(N_LAB, 0.2));
-        // Prefactors scale as n_L² and n_L³ at fixed skeleton porosity.
-        let lin = DragLaw { quadratic: false, ..LAB };
-        assert!(rel(lin.coefficient_split(0.2, N_LAB, 0.2), 0.25 * lin.coefficient(N_LAB, 0.2)) < 1e-15);
-        // Force along w, magnitude coefficient(|w|)·|w|, speed sign ignored.
-        let w = [0.03, -0.04];
-        let f = LAB.force(N_LAB, w);
-        let c = LAB.coefficient(N_LAB, 0.05);
-        assert!(rel(f[0], c * 0.03) < 1e-15 && rel(f[1], -c * 0.04) < 1e-15);
-        assert_eq!(LAB.coefficient(N_LAB, -0.05), c);
+    fn speed_sign_is_ignored_and_reynolds_is_eq_12() {
+        assert_eq!(LAB.coefficient(N_LAB, -0.05), LAB.coefficient(N_LAB, 0.05));
         assert!(rel(LAB.reynolds(0.1), 250.0) < 1e-15);
     }
 }

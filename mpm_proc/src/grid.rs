@@ -64,18 +64,24 @@ impl Grid {
         (k + GHOST) * self.node_dims()[0] + i + GHOST
     }
 
-    /// Shape-function stencil of a point at `x` with GIMP half-widths `half`, m.
-    pub fn stencil(&self, x: [f64; 2], half: [f64; 2]) -> Stencil {
-        let (bx, wx, gx) = self.axis(x[0], self.origin[0], self.elements[0], half[0]);
-        let (bz, wz, gz) = self.axis(x[1], self.origin[1], self.elements[1], half[1]);
+    /// The GIMP constants along x and z of a point set with half-widths
+    /// `half`, m: computed once per set and step, not per point.
+    pub fn shape_constants(&self, half: [f64; 2]) -> [GimpConstants; 2] {
+        [GimpConstants::new(self.h, half[0]), GimpConstants::new(self.h, half[1])]
+    }
+
+    /// Shape-function stencil of a point at `x` of a set with constants `k`
+    /// ([`Self::shape_constants`]).
+    pub fn stencil(&self, x: [f64; 2], k: &[GimpConstants; 2]) -> Stencil {
+        let (bx, wx, gx) = self.axis(x[0], self.origin[0], self.elements[0], &k[0]);
+        let (bz, wz, gz) = self.axis(x[1], self.origin[1], self.elements[1], &k[1]);
         Stencil { base: (bz * self.node_dims()[0] + bx) as u32, wx, gx, wz, gz }
     }
 
     /// One axis: stored index of the first of three nodes, their weights and derivatives.
-    fn axis(&self, x: f64, x0: f64, elements: usize, half: f64) -> (usize, [f64; 3], [f64; 3]) {
+    fn axis(&self, x: f64, x0: f64, elements: usize, k: &GimpConstants) -> (usize, [f64; 3], [f64; 3]) {
         let h = self.h;
-        // Reciprocals once per axis: divisions dominated the stencil's cost.
-        let inv_h = 1.0 / h;
+        let inv_h = k.inv_h;
         let xi = (x - x0) * inv_h;
         let mut w = [0.0; 3];
         let mut g = [0.0; 3];
@@ -85,7 +91,6 @@ impl Grid {
                 let nearest = ((xi + 0.5) as usize).min(elements);
                 // Stored index of node nearest − 1 (ghost offset GHOST = 1).
                 let base = nearest + GHOST - 1;
-                let k = GimpConstants::new(h, half);
                 for j in 0..3 {
                     let node_x = x0 + (nearest as f64 + j as f64 - 1.0) * h;
                     let (s, ds) = k.eval(x - node_x);
@@ -110,7 +115,7 @@ impl Grid {
 /// The uniform GIMP function of element side h and half-width l with its
 /// reciprocals precomputed.
 #[derive(Debug, Clone, Copy)]
-struct GimpConstants {
+pub struct GimpConstants {
     h: f64,
     l: f64,
     inv_h: f64,
@@ -146,18 +151,7 @@ impl GimpConstants {
 /// side h, point half-width l < h/2), Bardenhagen & Kober 2004: the hat
 /// function averaged over the point's extent.
 pub fn gimp(d: f64, h: f64, l: f64) -> (f64, f64) {
-    let a = d.abs();
-    let sign = if d < 0.0 { -1.0 } else { 1.0 };
-    if a < l {
-        (1.0 - (d * d + l * l) / (2.0 * h * l), -d / (h * l))
-    } else if a < h - l {
-        (1.0 - a / h, -sign / h)
-    } else if a < h + l {
-        let r = h + l - a;
-        (r * r / (4.0 * h * l), -sign * r / (2.0 * h * l))
-    } else {
-        (0.0, 0.0)
-    }
+    GimpConstants::new(h, l).eval(d)
 }
 
 /// Three nodes per axis from `base` (stored index of the lowest node), with
@@ -225,7 +219,7 @@ mod tests {
             let g = grid(shape);
             for s in 0..500 {
                 let x = [0.0025 + 0.095 * (s as f64 * 0.618).fract(), 0.0025 + 0.055 * (s as f64 * 0.414).fract()];
-                let st = g.stencil(x, [0.00125, 0.0016]);
+                let st = g.stencil(x, &g.shape_constants([0.00125, 0.0016]));
                 let (mut sum, mut gs, mut first) = (0.0, [0.0; 2], [0.0; 2]);
                 st.for_each(g.node_dims()[0], |node, n, grad| {
                     let row = g.node_dims()[0];
@@ -257,7 +251,7 @@ mod tests {
         }
         // The gradient of a linear field is exact: Σ ∇N_I x_I = 1.
         let g = grid(ShapeFunctions::Gimp);
-        let st = g.stencil([0.0437, 0.021], [l, l]);
+        let st = g.stencil([0.0437, 0.021], &g.shape_constants([l, l]));
         let row = g.node_dims()[0];
         let mut d = 0.0;
         st.for_each(row, |node, _, grad| d += grad[0] * g.node_position(node % row, node / row)[0]);

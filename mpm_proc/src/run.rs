@@ -277,7 +277,7 @@ fn run_on_pool(
     let mut last_progress = Instant::now();
     let started = Instant::now();
     let fraction = an.front_mass_fraction;
-    let speed_limit = 0.5 * mpm_wave_speed(scene);
+    let speed_limit = 0.5 * scene.mpm_time_step().max_speed;
     // The section lies at mid-width of the flume, so it overlays a DEM–LBM run.
     let mid_width = (0.5 * (scene.spec.domain.min[1] + scene.spec.domain.max[1])) as f32;
     release_gates(&mut mpm, &gates, &mut frames)?;
@@ -404,11 +404,6 @@ fn rel(a: f64, b: f64) -> f64 {
     } else {
         0.0
     }
-}
-
-/// The fastest wave speed, m/s.
-fn mpm_wave_speed(scene: &Scene) -> f64 {
-    crate::setup::time_step(scene).1
 }
 
 /// A reason to stop: a non-finite value, or a point faster than half the wave speed.

@@ -30,13 +30,6 @@ pub struct MpmSetup {
     pub notes: Vec<String>,
 }
 
-/// Fastest wave speed of the phases present and the step it allows
-/// (docs/mpm.md, "Time step").
-pub fn time_step(scene: &Scene) -> (f64, f64) {
-    let t = scene.mpm_time_step();
-    (t.dt, t.max_speed)
-}
-
 pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
     let spec = scene.mpm();
     let s = &scene.spec;
@@ -62,7 +55,8 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         Some(f) => (f.density, f.viscosity, Some(f.region)),
         None => (1000.0, 1e-3, None),
     };
-    let (dt, c_max) = time_step(scene);
+    let step = scene.mpm_time_step();
+    let (dt, c_max) = (step.dt, step.max_speed);
     let gravity = [d.gravity[0], d.gravity[2]];
     let g_down = -d.gravity[2];
     let params = Params {

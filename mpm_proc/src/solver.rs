@@ -375,7 +375,7 @@ impl Mpm {
             scratch.order.resize(n, 0);
             scratch.start.clear();
             scratch.start.resize(nodes + 1, 0);
-            let half = set.half;
+            let constants = grid.shape_constants(set.half);
             scratch
                 .stencil
                 .par_iter_mut()
@@ -383,7 +383,7 @@ impl Mpm {
                 .zip(set.x.par_iter())
                 .with_min_len(CHUNK)
                 .for_each(|((st, el), &x)| {
-                    *st = grid.stencil(x, half);
+                    *st = grid.stencil(x, &constants);
                     *el = grid.element_of(x) as u32;
                 });
             // Stable counting sort by base node: bins hold points in index order.

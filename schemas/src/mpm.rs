@@ -132,7 +132,8 @@ pub fn active_coefficient(friction_angle_deg: f64) -> f64 {
 
 /// Intrinsic permeability of Eq. 9 (Kozeny–Carman with Ergun's A), m².
 pub fn permeability(diameter: f64, porosity: f64, ergun_a: f64) -> f64 {
-    diameter * diameter * porosity.powi(3) / (ergun_a * (1.0 - porosity).powi(2))
+    let solid = 1.0 - porosity;
+    diameter * diameter * porosity * porosity * porosity / (ergun_a * solid * solid)
 }
 
 impl Scene {
