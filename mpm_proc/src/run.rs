@@ -33,9 +33,27 @@ pub struct MpmStateRecord {
     pub state: MpmState,
 }
 
+/// The same record borrowing its state: the recorder encodes the solver's
+/// state in place instead of copying every point array first.
+#[derive(Serialize)]
+struct MpmStateRecordRef<'a> {
+    version: u32,
+    state: &'a MpmState,
+}
+
+impl MpmStateRecordRef<'_> {
+    fn encode(&self) -> Vec<u8> {
+        bincode::serde::encode_to_vec(self, bincode::config::standard()).expect("state encodes")
+    }
+}
+
 impl MpmStateRecord {
     pub fn encode(&self) -> Vec<u8> {
-        bincode::serde::encode_to_vec(self, bincode::config::standard()).expect("state encodes")
+        MpmStateRecordRef { version: self.version, state: &self.state }.encode()
+    }
+    /// The bytes of a record of `state` at the current [`STATE_VERSION`].
+    pub fn encode_state(state: &MpmState) -> Vec<u8> {
+        MpmStateRecordRef { version: STATE_VERSION, state }.encode()
     }
     pub fn decode(bytes: &[u8]) -> Result<Self, String> {
         bincode::serde::decode_from_slice(bytes, bincode::config::standard()).map(|(s, _)| s).map_err(|e| e.to_string())
@@ -442,8 +460,7 @@ fn release_gates(mpm: &mut Mpm, gates: &[(String, f64)], frames: &mut Frames) ->
 
 fn record_state(frames: &mut Frames, mpm: &Mpm) -> Result<(), RecordError> {
     if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
-        let record = MpmStateRecord { version: STATE_VERSION, state: mpm.state.clone() };
-        rec.log_bytes(ch.state, mpm.state.time, record.encode())?;
+        rec.log_bytes(ch.state, mpm.state.time, MpmStateRecord::encode_state(&mpm.state))?;
     }
     Ok(())
 }
