@@ -34,10 +34,10 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
     let spec = scene.mpm();
     let s = &scene.spec;
     let d = &s.domain;
-    let h = spec.element_size;
-    let elements =
-        [((d.max[0] - d.min[0]) / h).round().max(1.0) as usize, ((d.max[2] - d.min[2]) / h).round().max(1.0) as usize];
-    let grid = Grid { origin: [d.min[0], d.min[2]], h, elements, shape: spec.shape_functions };
+    // The grid `coupler check` reports (validation ensures at least 2 elements per axis).
+    let g = scene.mpm_grid();
+    let (h, elements) = (g.element_size, [g.nx, g.nz]);
+    let grid = Grid { origin: g.origin, h, elements, shape: spec.shape_functions };
     let soil = s.particles.first();
     let liquid = s.fluids.first();
     let (rho_s, grain, n0, soil_region) = match soil {
