@@ -123,13 +123,17 @@ impl HydroExchange {
     fn capture_states(&mut self, world: &World) {
         let g = &world.grains;
         self.states.clear();
-        self.states.extend((0..g.len()).map(|p| ParticleState {
-            id: p as u32,
-            _pad: 0,
-            position: g.pos[p],
-            velocity: g.vel[p],
-            angular_velocity: g.omega[p],
-            radius: g.radius[p],
+        // In id order: the peer sees fixed ids whatever the storage order.
+        self.states.extend((0..g.len()).map(|id| {
+            let p = world.slot(id);
+            ParticleState {
+                id: id as u32,
+                _pad: 0,
+                position: g.pos[p],
+                velocity: g.vel[p],
+                angular_velocity: g.omega[p],
+                radius: g.radius[p],
+            }
         }));
     }
 
@@ -152,8 +156,9 @@ impl HydroExchange {
 
     /// Holds the last loads received as the grains' external force and torque.
     fn apply_loads(&self, world: &mut World) {
-        for p in 0..world.len() {
-            let (force, torque) = self.loads.get(p).map(|l| (l.force, l.torque)).unwrap_or_default();
+        for id in 0..world.len() {
+            let (force, torque) = self.loads.get(id).map(|l| (l.force, l.torque)).unwrap_or_default();
+            let p = world.slot(id);
             world.external_force[p] = force;
             world.external_torque[p] = torque;
         }

@@ -65,6 +65,13 @@ impl CellGrid {
         c
     }
 
+    /// Orders cells with x slowest, then z, then y: the storage order of a
+    /// spatial re-sort (`World::sort_in_space`).
+    pub fn sort_key(&self, p: &[f64; 3]) -> u64 {
+        let c = self.coord(p);
+        ((c[0] * self.dims[2] + c[2]) * self.dims[1] + c[1]) as u64
+    }
+
     fn index(&self, c: [usize; 3]) -> usize {
         (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]
     }

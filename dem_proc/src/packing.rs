@@ -23,7 +23,7 @@ use crate::setup::{walls, DemSetup};
 use crate::world::{Grains, Histories, World};
 
 /// Bump when the deposition algorithm changes, so old caches are not reused.
-const PACKING_VERSION: u32 = 1;
+const PACKING_VERSION: u32 = 2;
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct PackingReport {
@@ -87,7 +87,7 @@ pub fn packing_key(scene: &Scene) -> u64 {
         "particles": s.particles,
         "explicit": scene.explicit_spheres,
         "dem": [dem.normal_stiffness, dem.tangential_stiffness_ratio, dem.restitution,
-                dem.time_step.unwrap_or(-1.0), dem.steps_per_contact, dem.neighbour_skin],
+                dem.time_step.unwrap_or(-1.0), dem.steps_per_contact, dem.neighbour_skin, dem.sort_interval as f64],
         "deposition": [s.deposition.friction, s.deposition.rolling_friction,
                        s.deposition.rest_speed, s.deposition.max_time],
     });
@@ -173,7 +173,9 @@ pub fn build(
     let n = world.len();
     let mut keep = vec![true; n];
     for p in 0..n {
-        if let PackingSpec::Deposit { region, .. } = &scene.spec.particles[blocks[p] as usize].packing {
+        if let PackingSpec::Deposit { region, .. } =
+            &scene.spec.particles[blocks[world.ids()[p] as usize] as usize].packing
+        {
             keep[p] = world.grains.pos[p][2] <= region.max[2];
         }
     }
@@ -201,9 +203,11 @@ pub fn build(
             .collect(),
     };
     let deposition_time = world.time;
+    // The packing is stored in the deposition's final (spatially sorted) order.
+    let blocks: Vec<u16> =
+        world.ids().iter().zip(&keep).filter(|(_, k)| **k).map(|(&id, _)| blocks[id as usize]).collect();
     let mut grains = world.grains;
     grains.retain(&keep);
-    let blocks: Vec<u16> = blocks.iter().zip(&keep).filter(|(_, k)| **k).map(|(b, _)| *b).collect();
     for v in grains.vel.iter_mut().chain(grains.omega.iter_mut()) {
         *v = [0.0; 3];
     }

@@ -25,7 +25,7 @@ use crate::setup::{walls, DemSetup};
 use crate::world::{Grains, Histories, World};
 
 /// Version of the `/dem/state` bincode layout.
-pub const STATE_VERSION: u32 = 1;
+pub const STATE_VERSION: u32 = 2;
 
 /// Full-precision state, enough to continue a run bit for bit (`/dem/state`).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -34,7 +34,10 @@ pub struct DemState {
     /// Simulated time since the start of the run, s.
     pub time: f64,
     pub step: u64,
+    /// Per-grain state in the solver's storage order; `ids[slot]` is the grain id.
     pub grains: Grains,
+    pub ids: Vec<u32>,
+    /// Contact histories by storage slot.
     pub histories: Histories,
     /// Which walls (box faces, then gates) are still present.
     pub walls_active: Vec<bool>,
@@ -47,6 +50,7 @@ impl DemState {
             time: world.time,
             step: world.step_count,
             grains: world.grains.clone(),
+            ids: world.ids().to_vec(),
             histories: world.histories(),
             walls_active: world.walls.iter().map(|w| w.active).collect(),
         }
@@ -76,6 +80,7 @@ impl DemState {
             setup.numerics,
             setup.domain,
         );
+        world.set_ids(&self.ids).expect("a state's grain ids are a permutation of its grains");
         world.set_histories(&self.histories);
         world.time = self.time;
         world.step_count = self.step;
@@ -457,7 +462,7 @@ fn check_blow_up(world: &World, setup: &DemSetup) -> Result<(), RunError> {
         if !speed.is_finite() || speed >= limit {
             return Err(RunError::BlowUp {
                 t: world.time,
-                grain: p,
+                grain: world.ids()[p] as usize,
                 speed,
                 dt: setup.numerics.dt,
                 steps_per_contact: setup.steps_per_contact,

@@ -73,7 +73,7 @@ impl DemSetup {
         DemSetup {
             grain_law,
             wall_law,
-            numerics: Numerics { dt, skin: dem.neighbour_skin * max_diameter },
+            numerics: Numerics { dt, skin: dem.neighbour_skin * max_diameter, sort_interval: dem.sort_interval },
             contact_duration: tc,
             steps_per_contact: tc / dt,
             domain: (scene.spec.domain.min, scene.spec.domain.max),

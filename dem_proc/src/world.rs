@@ -2,8 +2,10 @@
 //!
 //! [`World::step`] is built from named stages, in this order:
 //! 1. `kick_and_drift`: v += ½Δt F/m, ω += ½Δt T/I, x += Δt v (velocity Verlet);
-//! 2. `update_neighbours`: rebuild the Verlet list when any grain has moved
-//!    more than half the skin since the last build;
+//! 2. `update_neighbours`: every `sort_interval` steps, re-sort the grain
+//!    storage along the cell grid (x slowest) so that neighbours sit close in
+//!    memory, and rebuild the list then; otherwise rebuild the Verlet list when
+//!    any grain has moved more than half the skin since the last build;
 //! 3. `compute_contact_forces`: the contact law on every touching pair. The
 //!    grains are cut into [`FORCE_BLOCKS`] fixed blocks of rows; each block
 //!    walks its rows in order and adds every pair's force to both grains in
@@ -16,7 +18,9 @@
 //! buffers). Every floating-point sum has a fixed order that depends only on
 //! the grain indices of the touching pairs, so results are bit-identical for
 //! any thread count and whenever the list was rebuilt (the blocks are fixed,
-//! not balanced per thread, for this reason).
+//! not balanced per thread, for this reason). The re-sort happens at fixed
+//! step counts and orders grains by (cell, id), so the storage order too is
+//! a function of the state alone; a restart carries it in [`World::ids`].
 //!
 //! Storage is struct-of-arrays in f64: positions in a 0.7 m flume with
 //! overlaps of ~1e-5 m need more than f32's 7 digits.
@@ -106,6 +110,8 @@ pub struct Numerics {
     pub dt: f64,
     /// Verlet skin, m.
     pub skin: f64,
+    /// Steps between spatial re-sorts of the storage; 0 never re-sorts.
+    pub sort_interval: u64,
 }
 
 /// Scratch buffers and counters, kept apart from the physical state.
@@ -121,6 +127,21 @@ struct Scratch {
     /// them for every partner, and one cache line beats three.
     pair_props: Vec<[f64; 3]>,
     blocks: [BlockSums; FORCE_BLOCKS],
+    sort: SortScratch,
+}
+
+/// Buffers of the spatial re-sort (kept so that a re-sort does not allocate).
+#[derive(Debug, Default)]
+struct SortScratch {
+    /// (cell key, grain id, old slot), sorted.
+    keys: Vec<(u64, u32, u32)>,
+    /// New slot of each old slot.
+    new_slot: Vec<u32>,
+    vec3: Vec<[f64; 3]>,
+    scalar: Vec<f64>,
+    count: Vec<u16>,
+    /// Springs of the touching pairs under the new slots: (i, j, spring), i < j.
+    springs: Vec<(u32, u32, [f64; 3])>,
 }
 
 /// Contact sums of one block of rows of the pair list.
@@ -139,7 +160,12 @@ struct BlockSums {
 /// Everything the DEM integrates.
 #[derive(Debug)]
 pub struct World {
+    /// Per-grain state in storage order (re-sorted in space now and then);
+    /// `ids[slot]` is the grain's id, fixed from the packing on.
     pub grains: Grains,
+    ids: Vec<u32>,
+    /// Storage slot of each grain id.
+    slot_of: Vec<u32>,
     pub walls: Vec<Wall>,
     /// Tangential springs grain × wall, index `grain * walls.len() + wall`.
     pub wall_springs: Vec<[f64; 3]>,
@@ -156,6 +182,7 @@ pub struct World {
     pub time: f64,
     pub step_count: u64,
     pub neighbour_builds: u64,
+    pub sorts: u64,
     /// Wall seconds spent in each stage since creation.
     pub stage_seconds: StageSeconds,
     grid: CellGrid,
@@ -199,6 +226,8 @@ impl World {
         let nw = walls.len();
         let mut w = World {
             grains,
+            ids: (0..n as u32).collect(),
+            slot_of: (0..n as u32).collect(),
             walls,
             wall_springs: vec![[0.0; 3]; n * nw.max(1)],
             pairs: PairList::default(),
@@ -212,6 +241,7 @@ impl World {
             time: 0.0,
             step_count: 0,
             neighbour_builds: 0,
+            sorts: 0,
             stage_seconds: StageSeconds::default(),
             grid,
             scratch: Scratch::default(),
@@ -233,6 +263,37 @@ impl World {
     }
     pub fn is_empty(&self) -> bool {
         self.grains.is_empty()
+    }
+
+    /// Grain id of each storage slot.
+    pub fn ids(&self) -> &[u32] {
+        &self.ids
+    }
+
+    /// Storage slot of grain `id`.
+    #[inline]
+    pub fn slot(&self, id: usize) -> usize {
+        self.slot_of[id] as usize
+    }
+
+    /// Takes the storage order of a saved state: `ids[slot]` is the id of the
+    /// grain in `slot`. Pre: a permutation of 0..len. Rebuilds the lists.
+    pub fn set_ids(&mut self, ids: &[u32]) -> Result<(), String> {
+        let n = self.len();
+        let mut slot_of = vec![u32::MAX; n];
+        if ids.len() != n {
+            return Err(format!("{} grain ids for {n} grains", ids.len()));
+        }
+        for (slot, &id) in ids.iter().enumerate() {
+            match slot_of.get_mut(id as usize) {
+                Some(s) if *s == u32::MAX => *s = slot as u32,
+                _ => return Err(format!("grain ids are not a permutation of 0..{n} (id {id} at slot {slot})")),
+            }
+        }
+        self.ids.clear();
+        self.ids.extend_from_slice(ids);
+        self.slot_of = slot_of;
+        Ok(())
     }
 
     /// Restores contact histories (from a state or cache) into the current lists.
@@ -282,7 +343,11 @@ impl World {
         self.release_gates();
         let max_move = self.kick_and_drift();
         let t1 = Instant::now();
-        if 2.0 * max_move > self.numerics.skin {
+        let interval = self.numerics.sort_interval;
+        if interval > 0 && self.step_count > 0 && self.step_count % interval == 0 {
+            self.sort_in_space();
+            self.build_neighbours();
+        } else if 2.0 * max_move > self.numerics.skin {
             self.build_neighbours();
         }
         let t2 = Instant::now();
@@ -354,6 +419,92 @@ impl World {
             })
             .reduce(|| 0.0, f64::max);
         max2.sqrt()
+    }
+
+    /// Part of stage 2: reorders every per-grain array by (cell, id), cells
+    /// walked with x slowest (the flume's long axis), then z, then y, so that
+    /// a grain's partners and each force block's window are close in memory.
+    /// Post: the pair list holds the touching pairs' springs under the new
+    /// slots (a list build must follow); ids and slots are permuted alike.
+    fn sort_in_space(&mut self) {
+        let n = self.len();
+        let sc = &mut self.scratch.sort;
+        sc.keys.clear();
+        sc.keys.extend((0..n).map(|slot| (self.grid.sort_key(&self.grains.pos[slot]), self.ids[slot], slot as u32)));
+        sc.keys.sort_unstable();
+        sc.new_slot.clear();
+        sc.new_slot.resize(n, 0);
+        for (new, &(_, _, old)) in sc.keys.iter().enumerate() {
+            sc.new_slot[old as usize] = new as u32;
+        }
+        let order = &sc.keys;
+        fn permute<T: Copy>(v: &mut Vec<T>, order: &[(u64, u32, u32)], tmp: &mut Vec<T>) {
+            tmp.clear();
+            tmp.extend(order.iter().map(|&(_, _, old)| v[old as usize]));
+            std::mem::swap(v, tmp);
+        }
+        let g = &mut self.grains;
+        for v in [
+            &mut g.pos,
+            &mut g.vel,
+            &mut g.omega,
+            &mut g.force,
+            &mut g.torque,
+            &mut self.external_force,
+            &mut self.external_torque,
+        ] {
+            permute(v, order, &mut sc.vec3);
+        }
+        permute(&mut self.scratch.pair_props, order, &mut sc.vec3);
+        for v in [&mut g.radius, &mut g.mass, &mut self.scratch.inv_mass, &mut self.scratch.inv_inertia] {
+            permute(v, order, &mut sc.scalar);
+        }
+        permute(&mut self.coordination, order, &mut sc.count);
+        let nw = self.walls.len().max(1);
+        sc.vec3.clear();
+        for &(_, _, old) in order.iter() {
+            sc.vec3.extend_from_slice(&self.wall_springs[old as usize * nw..(old as usize + 1) * nw]);
+        }
+        std::mem::swap(&mut self.wall_springs, &mut sc.vec3);
+        for (slot, &(_, id, _)) in order.iter().enumerate() {
+            self.ids[slot] = id;
+            self.slot_of[id as usize] = slot as u32;
+        }
+        // The springs of touching pairs under the new slots, as a fresh list
+        // without candidates: the build that follows carries them over.
+        let pl = &self.pairs;
+        sc.springs.clear();
+        sc.springs.extend((0..pl.len()).filter(|&k| pl.spring[k] != [0.0; 3] || pl.touching[k]).map(|k| {
+            let (a, b) = (sc.new_slot[pl.i[k] as usize], sc.new_slot[pl.j[k] as usize]);
+            // The spring is the tangential displacement of i relative to j:
+            // a pair whose order flips gets the opposite spring.
+            if a < b {
+                (a, b, pl.spring[k])
+            } else {
+                (b, a, neg(pl.spring[k]))
+            }
+        }));
+        sc.springs.sort_unstable_by_key(|&(i, j, _)| (i, j));
+        let pl = &mut self.pairs;
+        pl.row_start.clear();
+        pl.i.clear();
+        pl.j.clear();
+        pl.spring.clear();
+        pl.touching.clear();
+        pl.row_start.push(0);
+        let mut k = 0;
+        for row in 0..n as u32 {
+            while k < sc.springs.len() && sc.springs[k].0 == row {
+                let (i, j, s) = sc.springs[k];
+                pl.i.push(i);
+                pl.j.push(j);
+                pl.spring.push(s);
+                pl.touching.push(true);
+                k += 1;
+            }
+            pl.row_start.push(pl.j.len() as u32);
+        }
+        self.sorts += 1;
     }
 
     /// Stage 2.

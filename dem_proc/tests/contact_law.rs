@@ -26,7 +26,15 @@ fn floor() -> Wall {
 }
 
 fn world(grains: Grains, walls: Vec<Wall>, law: ContactLaw, gravity: [f64; 3], dt: f64) -> World {
-    let mut w = World::new(grains, walls, law, law, gravity, Numerics { dt, skin: 0.2 * R }, ([-0.05; 3], [0.05; 3]));
+    let mut w = World::new(
+        grains,
+        walls,
+        law,
+        law,
+        gravity,
+        Numerics { dt, skin: 0.2 * R, sort_interval: 0 },
+        ([-0.05; 3], [0.05; 3]),
+    );
     w.prime_forces();
     w
 }

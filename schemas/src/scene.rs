@@ -498,6 +498,12 @@ pub struct DemSpec {
     /// Verlet skin as a fraction of the largest diameter. Default 0.15.
     #[serde(default = "default_skin")]
     pub neighbour_skin: f64,
+    /// Steps between spatial re-sorts of the grain storage (cache locality,
+    /// as LAMMPS's `atom_modify sort`); 0 never re-sorts. Grain ids stay
+    /// fixed; only the storage order (and so the summation order) changes.
+    /// Default 1000.
+    #[serde(default = "default_sort_interval")]
+    pub sort_interval: u64,
 }
 
 fn default_tangential_ratio() -> f64 {
@@ -508,6 +514,9 @@ fn default_steps_per_contact() -> f64 {
 }
 fn default_skin() -> f64 {
     0.15
+}
+fn default_sort_interval() -> u64 {
+    1000
 }
 
 /// How `dem_proc` and `lbm_proc` exchange particle states and hydrodynamic
