@@ -183,15 +183,23 @@ pub fn start_run(
     Ok((stop, scene))
 }
 
-/// Sizes rayon's global pool (default: all cores).
+/// Sizes rayon's global pool (default: all cores) with the calling thread as
+/// one of its workers. Call it from the thread that steps the solver: its
+/// parallel loops then start in place, where from a thread outside the pool
+/// every loop hands its work over and blocks until a worker wakes (a futex
+/// wake-up per stage, 13 % of a one-thread DEM step: docs/BENCHMARKS.md).
 pub fn set_global_threads(solver: &str, threads: Option<usize>) -> Result<(), std::process::ExitCode> {
+    let mut builder = rayon::ThreadPoolBuilder::new().use_current_thread();
     if let Some(n) = threads {
-        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global().map_err(|e| {
-            tell!("{solver}: cannot set {n} threads: {e}");
-            std::process::ExitCode::FAILURE
-        })?;
+        builder = builder.num_threads(n.max(1));
     }
-    Ok(())
+    builder.build_global().map_err(|e| {
+        tell!(
+            "{solver}: cannot set {} threads: {e}",
+            threads.map_or("the default number of".to_string(), |n| n.to_string())
+        );
+        std::process::ExitCode::FAILURE
+    })
 }
 
 /// The end of a run that wrote its summary: the `done` progress event and
