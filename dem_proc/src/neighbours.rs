@@ -25,7 +25,21 @@ pub struct CellGrid {
     sorted: Vec<u32>,
     cell_of: Vec<u32>,
     fill: Vec<u32>,
+    /// Per part of the rows, the list being built (kept between builds).
+    parts: Vec<RowPart>,
 }
+
+/// Rows `rows` of a pair list under construction, built by one task.
+#[derive(Debug, Clone, Default)]
+struct RowPart {
+    j: Vec<u32>,
+    spring: Vec<[f64; 3]>,
+    row_len: Vec<u32>,
+}
+
+/// Parts the rows are cut into for a parallel build. The list is the same
+/// whatever the count (each row is sorted by j), so this only sets the grain.
+const BUILD_PARTS: usize = 8;
 
 impl CellGrid {
     pub fn new(min: [f64; 3], max: [f64; 3], cell: f64) -> Self {
@@ -53,6 +67,7 @@ impl CellGrid {
             sorted: Vec::new(),
             cell_of: Vec::new(),
             fill: Vec::new(),
+            parts: vec![RowPart::default(); BUILD_PARTS],
         }
     }
 
@@ -149,36 +164,57 @@ impl PairList {
 }
 
 /// Rebuilds `next` from positions, carrying each listed pair's spring over from `prev`.
-/// Buffers are reused; no allocation once they have grown.
+/// Rows are built in parallel parts and then joined in row order, so the list
+/// does not depend on the thread count. Buffers are reused; no allocation
+/// once they have grown.
 pub fn rebuild(grid: &mut CellGrid, pos: &[[f64; 3]], radius: &[f64], skin: f64, prev: &PairList, next: &mut PairList) {
+    use rayon::prelude::*;
     let n = pos.len();
     grid.bin(pos);
+    let mut parts = std::mem::take(&mut grid.parts);
+    let grid_ref = &*grid;
+    let prev_rows = prev.row_start.len();
+    parts.par_iter_mut().enumerate().for_each(|(b, part)| {
+        part.j.clear();
+        part.spring.clear();
+        part.row_len.clear();
+        for i in b * n / BUILD_PARTS..(b + 1) * n / BUILD_PARTS {
+            let start = part.j.len();
+            let (pi, ri) = (&pos[i], radius[i]);
+            grid_ref.for_each_near(pi, |j| {
+                if j > i {
+                    let r = ri + radius[j] + skin;
+                    let d = [pos[j][0] - pi[0], pos[j][1] - pi[1], pos[j][2] - pi[2]];
+                    if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < r * r {
+                        part.j.push(j as u32);
+                    }
+                }
+            });
+            part.j[start..].sort_unstable();
+            for k in start..part.j.len() {
+                let j = part.j[k] as usize;
+                let spring = if i + 1 < prev_rows { prev.find(i, j).map(|p| prev.spring[p]) } else { None };
+                part.spring.push(spring.unwrap_or([0.0; 3]));
+            }
+            part.row_len.push((part.j.len() - start) as u32);
+        }
+    });
     next.row_start.clear();
     next.i.clear();
     next.j.clear();
     next.spring.clear();
     next.row_start.push(0);
-    for i in 0..n {
-        let start = next.j.len();
-        let (pi, ri) = (&pos[i], radius[i]);
-        grid.for_each_near(pi, |j| {
-            if j > i {
-                let r = ri + radius[j] + skin;
-                let d = [pos[j][0] - pi[0], pos[j][1] - pi[1], pos[j][2] - pi[2]];
-                if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < r * r {
-                    next.j.push(j as u32);
-                }
-            }
-        });
-        next.j[start..].sort_unstable();
-        for k in start..next.j.len() {
-            let j = next.j[k] as usize;
-            next.i.push(i as u32);
-            let spring = if i + 1 < prev.row_start.len() { prev.find(i, j).map(|p| prev.spring[p]) } else { None };
-            next.spring.push(spring.unwrap_or([0.0; 3]));
+    let mut i = 0u32;
+    for part in &parts {
+        next.j.extend_from_slice(&part.j);
+        next.spring.extend_from_slice(&part.spring);
+        for &len in &part.row_len {
+            next.i.extend(std::iter::repeat_n(i, len as usize));
+            next.row_start.push(next.row_start[i as usize] + len);
+            i += 1;
         }
-        next.row_start.push(next.j.len() as u32);
     }
+    grid.parts = parts;
     let m = next.j.len();
     // Every pair counts as touching until evaluated, so the first evaluation
     // clears the springs of pairs that are apart (the buffer holds stale flags).
