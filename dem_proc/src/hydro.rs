@@ -39,6 +39,11 @@ pub struct HydroExchange {
     pub exchange_seconds: f64,
     /// Exchanges done.
     pub exchanges: u64,
+    /// Keep every received message, encoded, for the recording
+    /// (`output.record_exchange`); the run drains [`Self::received`].
+    pub record_received: bool,
+    /// (simulated time, encoded loads) received since the last drain.
+    pub received: Vec<(f64, Vec<u8>)>,
 }
 
 /// Whether the run goes on after an exchange.
@@ -61,6 +66,8 @@ impl HydroExchange {
             loads: Vec::new(),
             exchange_seconds: 0.0,
             exchanges: 0,
+            record_received: scene.spec.output.record_exchange,
+            received: Vec::new(),
         }
     }
 
@@ -140,6 +147,12 @@ impl HydroExchange {
     /// Receives exchange `n`; true when the peer stops.
     fn receive(&mut self, world: &World, n: u64, peer: &mut dyn LoadPeer) -> Result<bool, PeerError> {
         let header = peer.receive_loads(n, &mut self.loads)?;
+        if self.record_received {
+            let mut bytes = Vec::new();
+            let loads: &[HydroLoad] = if header.is_stopping() { &[] } else { &self.loads };
+            schemas::exchange::encode_loads(&header, loads, &mut bytes);
+            self.received.push((world.time, bytes));
+        }
         if header.is_stopping() {
             return Ok(true);
         }

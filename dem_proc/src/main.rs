@@ -165,12 +165,20 @@ fn main() -> ExitCode {
                 Ok(l) => l,
                 Err(code) => return code,
             };
-            let connect: Option<dem_proc::hydro::Connect> = link.map(|cfg| {
-                Box::new(move |grains: usize| {
-                    let cfg = schemas::link::LinkConfig { particles: grains, ..cfg };
-                    let link = schemas::link::DemLink::connect(&cfg)?;
-                    Ok(Box::new(link) as Box<dyn schemas::exchange::LoadPeer>)
+            let replay = args.replay_peer.clone().map(|path| {
+                Box::new(move |_grains: usize| {
+                    let peer = schemas::exchange::ReplayLoads::from_recording(&path)?;
+                    Ok(Box::new(peer) as Box<dyn schemas::exchange::LoadPeer>)
                 }) as dem_proc::hydro::Connect
+            });
+            let connect: Option<dem_proc::hydro::Connect> = replay.or_else(|| {
+                link.map(|cfg| {
+                    Box::new(move |grains: usize| {
+                        let cfg = schemas::link::LinkConfig { particles: grains, ..cfg };
+                        let link = schemas::link::DemLink::connect(&cfg)?;
+                        Ok(Box::new(link) as Box<dyn schemas::exchange::LoadPeer>)
+                    }) as dem_proc::hydro::Connect
+                })
             });
             match run(&scene, &opts, &stop, &mut reporter, connect) {
                 Ok(summary) => {

@@ -132,6 +132,8 @@ struct Channels {
     metrics: ChannelId,
     state: ChannelId,
     log: ChannelId,
+    /// `/dem/received_loads` (`output.record_exchange` in a coupled run).
+    received: Option<ChannelId>,
 }
 
 struct Frames {
@@ -243,6 +245,12 @@ pub fn run(
             metrics: b.channel::<DemMetrics>(topics::DEM_METRICS)?,
             state: b.raw_channel(topics::DEM_STATE, "bincode", state_meta)?,
             log: b.channel::<Log>(topics::LOG)?,
+            received: if peer.is_some() && out.record_exchange {
+                let meta = BTreeMap::from([("encoding".to_string(), schemas::exchange::RECEIVED_ENCODING.to_string())]);
+                Some(b.raw_channel(topics::DEM_RECEIVED_LOADS, "sgf-exchange", meta)?)
+            } else {
+                None
+            },
         };
         let mut rec = b.start(64);
         rec.scene(scene.to_toml())?;
@@ -278,11 +286,22 @@ pub fn run(
     record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
 
     let mut hydro = peer.is_some().then(|| HydroExchange::from_scene(scene, dt));
+    if let Some(h) = hydro.as_mut() {
+        h.record_received = frames.channels.as_ref().is_some_and(|c| c.received.is_some());
+    }
     let mut failure = None;
     while world.step_count < total_steps {
         if let (Some(h), Some(p)) = (hydro.as_mut(), peer.as_deref_mut()) {
             if h.due(&world) {
-                match h.exchange(&mut world, p) {
+                let result = h.exchange(&mut world, p);
+                if let (Some(rec), Some(Some(ch))) =
+                    (frames.recorder.as_mut(), frames.channels.as_ref().map(|c| c.received))
+                {
+                    for (t, bytes) in h.received.drain(..) {
+                        rec.log_bytes(ch, t, bytes)?;
+                    }
+                }
+                match result {
                     Ok(Flow::Continue) => {}
                     Ok(Flow::PeerStopped) => {
                         status = "peer_stopped";

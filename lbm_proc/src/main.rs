@@ -161,7 +161,19 @@ fn main() -> ExitCode {
                 }
                 Err(code) => return code,
             };
-            let peer = link.as_mut().map(|l| l as &mut dyn schemas::exchange::StatePeer);
+            let mut replay = match args.replay_peer.as_deref().map(schemas::exchange::ReplayStates::from_recording) {
+                Some(Ok(r)) => Some(r),
+                Some(Err(e)) => {
+                    tell!("lbm_proc: error: {e}");
+                    return ExitCode::FAILURE;
+                }
+                None => None,
+            };
+            let peer = match (link.as_mut(), replay.as_mut()) {
+                (Some(l), _) => Some(l as &mut dyn schemas::exchange::StatePeer),
+                (None, Some(r)) => Some(r as &mut dyn schemas::exchange::StatePeer),
+                (None, None) => None,
+            };
             match run(&scene, &opts, &stop, &mut reporter, peer) {
                 Ok(summary) => {
                     let front = summary.liquid_front.last().map(|f| f.x_norm).unwrap_or(f64::NAN);

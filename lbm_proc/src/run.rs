@@ -9,7 +9,7 @@ use std::time::Instant;
 use foxglove::schemas::{Grid, Log, PointCloud, Pose, Quaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use schemas::exchange::{ExchangeHeader, StatePeer, FLAG_STOPPING};
+use schemas::exchange::{ExchangeHeader, ParticleState, StatePeer, FLAG_STOPPING};
 use schemas::measures::{front_position, FrontSample};
 use schemas::metrics::LbmMetrics;
 use schemas::process::RunOptions;
@@ -86,6 +86,8 @@ struct Channels {
     metrics: ChannelId,
     state: ChannelId,
     log: ChannelId,
+    /// `/lbm/received_states` (`output.record_exchange` in a coupled run).
+    received: Option<ChannelId>,
 }
 
 /// The recorder (when recording) and what the frames need between calls.
@@ -161,6 +163,12 @@ pub fn run(
             metrics: b.channel::<LbmMetrics>(topics::LBM_METRICS)?,
             state: b.raw_channel(topics::LBM_STATE, "bincode", state_meta)?,
             log: b.channel::<Log>(topics::LOG)?,
+            received: if peer.is_some() && scene.spec.output.record_exchange {
+                let meta = BTreeMap::from([("encoding".to_string(), schemas::exchange::RECEIVED_ENCODING.to_string())]);
+                Some(b.raw_channel(topics::LBM_RECEIVED_STATES, "sgf-exchange", meta)?)
+            } else {
+                None
+            },
         };
         let mut rec = b.start(16);
         rec.scene(scene.to_toml())?;
@@ -194,6 +202,7 @@ pub fn run(
         None => None,
     };
     let (mut states, mut loads) = (Vec::new(), Vec::new());
+    let mut received_bytes = Vec::new();
     let mut exchange_seconds = 0.0;
     release_gates(&mut fluid, &setup, &mut gates_removed, time, &mut frames)?;
     record_frame(&mut frames, &fluid, scene, &setup, t_ref, time, mass_initial, 0.0)?;
@@ -219,6 +228,13 @@ pub fn run(
                 }
             };
             exchange_seconds += waited.elapsed().as_secs_f64();
+            if let (Some(rec), Some(Some(ch))) =
+                (frames.recorder.as_mut(), frames.channels.as_ref().map(|c| c.received))
+            {
+                let received: &[ParticleState] = if header.is_stopping() { &[] } else { &states };
+                schemas::exchange::encode_states(&header, received, &mut received_bytes);
+                rec.log_bytes(ch, time, received_bytes.clone())?;
+            }
             if header.is_stopping() {
                 frames.log(time, log_level::INFO, &format!("dem_proc stopped at exchange {steps}"))?;
                 break;

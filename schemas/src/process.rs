@@ -86,6 +86,12 @@ pub struct RunArgs {
     /// The LBM waits while the DEM deposits its packing.
     #[arg(long, default_value_t = 120.0)]
     pub connect_timeout: f64,
+    /// Coupled scenes: run alone, with the peer played back from the
+    /// messages this process received in a recorded run (recorded with
+    /// `--set output.record_exchange=true`): reproduces that run's part of
+    /// this process bit for bit. Same scene and overrides as the recording.
+    #[arg(long, value_name = "RUN.mcap", conflicts_with = "run_id")]
+    pub replay_peer: Option<PathBuf>,
 }
 
 /// The link settings of a coupled scene: `Ok(None)` for an uncoupled one.
@@ -101,6 +107,16 @@ pub fn link_config(
 ) -> Result<Option<crate::link::LinkConfig>, std::process::ExitCode> {
     let bad = || std::process::ExitCode::from(crate::EXIT_BAD_SCENE as u8);
     let coupled = scene.method() == crate::Method::DemLbm;
+    if args.replay_peer.is_some() {
+        if !coupled {
+            tell!(
+                "{solver}: --replay-peer is for coupled scenes (grains and fluids); this scene is {}",
+                scene.method().name()
+            );
+            return Err(bad());
+        }
+        return Ok(None);
+    }
     match (&args.run_id, coupled) {
         (None, false) => Ok(None),
         (Some(_), false) => {
@@ -111,7 +127,7 @@ pub fn link_config(
             Err(bad())
         }
         (None, true) => {
-            tell!("{solver}: the scene couples grains and fluids: run it with `coupler run`, or start dem_proc and lbm_proc with the same --run-id ID");
+            tell!("{solver}: the scene couples grains and fluids: run it with `coupler run`, start dem_proc and lbm_proc with the same --run-id ID, or replay a recorded peer with --replay-peer RUN.mcap");
             Err(bad())
         }
         (Some(id), true) => {

@@ -30,6 +30,10 @@ pub mod topics {
     pub const DEM_SPHERES: &str = "/dem/spheres";
     pub const DEM_METRICS: &str = "/dem/metrics";
     pub const DEM_STATE: &str = "/dem/state";
+    /// The loads the DEM received, one message per exchange (`output.record_exchange`).
+    pub const DEM_RECEIVED_LOADS: &str = "/dem/received_loads";
+    /// The grain states the LBM received, one message per exchange.
+    pub const LBM_RECEIVED_STATES: &str = "/lbm/received_states";
     pub const LBM_SURFACE: &str = "/lbm/surface";
     pub const LBM_SLICE: &str = "/lbm/slice";
     pub const LBM_METRICS: &str = "/lbm/metrics";

@@ -168,3 +168,14 @@ pub fn dem_states(mcap_path: &Path) -> Vec<dem_proc::run::DemState> {
     }
     out
 }
+
+/// The raw messages of `topic` in a recording, in log order.
+pub fn topic_messages(mcap_path: &Path, topic: &str) -> Vec<Vec<u8>> {
+    let bytes = std::fs::read(mcap_path).expect("recording exists");
+    mcap::MessageStream::new(&bytes)
+        .expect("mcap")
+        .map(|m| m.expect("message"))
+        .filter(|m| m.channel.topic == topic)
+        .map(|m| m.data.into_owned())
+        .collect()
+}
