@@ -172,8 +172,7 @@ impl HydroExchange {
         for id in 0..world.len() {
             let (force, torque) = self.loads.get(id).map(|l| (l.force, l.torque)).unwrap_or_default();
             let p = world.slot(id);
-            world.external_force[p] = force;
-            world.external_torque[p] = torque;
+            world.set_external_load(p, force, torque);
         }
     }
 }

@@ -37,6 +37,8 @@ pub struct DemState {
     /// Per-grain state in the solver's storage order; `ids[slot]` is the grain id.
     pub grains: Grains,
     pub ids: Vec<u32>,
+    /// First storage row of each force block, then the grain count.
+    pub block_starts: Vec<u32>,
     /// Contact histories by storage slot.
     pub histories: Histories,
     /// Which walls (box faces, then gates) are still present.
@@ -51,6 +53,7 @@ impl DemState {
             step: world.step_count,
             grains: world.grains.clone(),
             ids: world.ids().to_vec(),
+            block_starts: world.block_starts().to_vec(),
             histories: world.histories(),
             walls_active: world.walls.iter().map(|w| w.active).collect(),
         }
@@ -81,6 +84,7 @@ impl DemState {
             setup.domain,
         );
         world.set_ids(&self.ids).expect("a state's grain ids are a permutation of its grains");
+        world.set_block_starts(&self.block_starts).expect("a state's force blocks cut its grains");
         world.set_histories(&self.histories);
         world.time = self.time;
         world.step_count = self.step;
