@@ -258,3 +258,42 @@ fn killed_coupler_leaves_no_orphan_and_a_finished_recording() {
     assert_eq!(s["status"], "interrupted");
     assert!(s["sim_time"].as_f64().unwrap() > 0.0);
 }
+
+/// The Python decoder of `/dem/state` printed in docs/recording.md reads a
+/// fresh recording the way the solver does (the doc cannot drift from the
+/// layout unnoticed).
+#[test]
+fn python_state_decoder_in_the_docs_matches_the_layout() {
+    let Some(python) = integration_tests::python_with_mcap() else {
+        assert!(std::env::var_os("CI").is_none(), "CI must be able to install the Python mcap reader");
+        eprintln!("SKIPPED: python3 with pip is not available on this machine");
+        return;
+    };
+    let doc = std::fs::read_to_string(repo_root().join("docs/recording.md")).unwrap();
+    let start = doc.find("A decoder in Python").expect("decoder section");
+    let code_start = doc[start..].find("```python\n").unwrap() + start + "```python\n".len();
+    let code_end = doc[code_start..].find("```").unwrap() + code_start;
+    let script = format!(
+        "{}\nimport sys\nfrom mcap.reader import make_reader\nlast = None\nwith open(sys.argv[1], 'rb') as f:\n    for _, _, m in make_reader(f).iter_messages(topics=['/dem/state']):\n        last = m.data\ns = decode_state(last)\nprint(s['version'], s['step'], len(s['pos']), len(s['ids']), len(s['block_starts']), len(s['pairs']), len(s['walls']), len(s['walls_active']), repr(s['time']), repr(s['pos'][-1][2]), s['ids'][-1])\n",
+        &doc[code_start..code_end]
+    );
+    let mcap = small_run().join("run.mcap");
+    let out = Command::new(python).arg("-c").arg(&script).arg(&mcap).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let state = integration_tests::dem_states(&mcap).pop().expect("a state");
+    let want = format!(
+        "{} {} {} {} {} {} {} {} {:?} {:?} {}",
+        state.version,
+        state.step,
+        state.grains.len(),
+        state.ids.len(),
+        state.block_starts.len(),
+        state.histories.pairs.len(),
+        state.histories.walls.len(),
+        state.walls_active.len(),
+        state.time,
+        state.grains.pos.last().unwrap()[2],
+        state.ids.last().unwrap()
+    );
+    assert_eq!(String::from_utf8_lossy(&out.stdout).trim(), want);
+}
