@@ -232,6 +232,10 @@ struct Scratch<T> {
     interface: Vec<usize>,
     /// Number of fluid cells.
     fluid_count: usize,
+    /// Times the pending excess was given back to the liquid, and the mass
+    /// given back (lattice units): diagnostics, not part of the state.
+    pending_returned: u64,
+    returned_mass: f64,
     /// Conversion work lists, reused every step.
     lists: free_surface::Lists,
     /// Direct forcing for the next steps and what it did in the last one.
@@ -315,6 +319,8 @@ impl<T: Real> Fluid<T> {
             fill: vec![0.0; ncells],
             interface: Vec::new(),
             fluid_count: 0,
+            pending_returned: 0,
+            returned_mass: 0.0,
             lists: Default::default(),
             forcing: Default::default(),
         };

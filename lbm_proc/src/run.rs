@@ -333,6 +333,7 @@ pub fn run(
             mass_final: mass_si(mass_final),
             mass_relative_change: (mass_final - mass_initial) / mass_initial,
             pending_mass_final: mass_si(fluid.pending_excess()),
+            returned_mass: mass_si(fluid.returned_excess()),
             max_mach: frames.max_mach,
             recording_fraction: frames.seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),

@@ -139,6 +139,11 @@ pub struct LbmDetails {
     pub mass_relative_change: f64,
     /// Part of `mass_final` held as excess that found no receiving cell, kg.
     pub pending_mass_final: f64,
+    /// Liquid mass that found no receiving cell during the run (one-cell
+    /// droplets, sheets too thin to hold) and was given back to the bulk as
+    /// a uniform density rise, kg (docs/lbm.md "Splashes").
+    #[serde(default)]
+    pub returned_mass: f64,
     /// Largest |u|/c_s seen on the recorded frames.
     pub max_mach: f64,
     /// Fraction of the run's wall time spent handing frames to the recorder.
