@@ -158,3 +158,71 @@ fn replaying_the_recorded_peer_reproduces_each_process() {
         }
     }
 }
+
+/// Each real binary alone against a peer played from a recording over the
+/// real iceoryx2 link (`play_peer`): handshake, lockstep and stop work as in
+/// the coupled run and every message matches it bit for bit; a message out
+/// of order is refused with the exchange numbers.
+#[test]
+fn each_binary_alone_against_a_played_peer_over_the_link() {
+    let scene = "scenes/validation/settling_sphere.toml";
+    let set = [
+        "--set",
+        "output.end_time=0.03",
+        "--set",
+        "output.state_interval=0.01",
+        "--set",
+        "output.record_exchange=true",
+    ];
+    let recorded = coupler_run("played_peer_source", scene, &set);
+    let run_mcap = recorded.join("run.mcap");
+    let player = env!("CARGO_BIN_EXE_play_peer");
+    let pid = std::process::id();
+    let play = |played: &str, solver: &str, skip: Option<u64>| {
+        let run_id = format!("pp_{solver}_{}_{pid}", skip.map_or(0, |s| s + 1));
+        let out = scratch_dir(&format!("played_{solver}_{}", skip.is_some()));
+        let mut peer = std::process::Command::new(player);
+        peer.current_dir(repo_root())
+            .args([played, scene])
+            .arg(&run_mcap)
+            .args(["--run-id", &run_id])
+            .args(&set[..2])
+            .args(&set[2..4])
+            .args(&set[4..]);
+        if let Some(n) = skip {
+            peer.args(["--skip", &n.to_string()]);
+        }
+        let peer = peer.stderr(std::process::Stdio::piped()).spawn().expect("play_peer starts");
+        let solver_out = std::process::Command::new(binary(solver))
+            .current_dir(repo_root())
+            .env("SGF_CACHE_DIR", out.join("cache"))
+            .args(["run", scene])
+            .args(set)
+            .args(["--run-id", &run_id, "--connect-timeout", "20"])
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .expect("solver starts");
+        let peer = peer.wait_with_output().expect("play_peer ends");
+        (out, solver_out, peer)
+    };
+    for (played, solver, own, topic) in
+        [("lbm", "dem_proc", "dem.mcap", topics::DEM_STATE), ("dem", "lbm_proc", "lbm.mcap", topics::LBM_STATE)]
+    {
+        let (out, solver_out, peer) = play(played, solver, None);
+        let peer_err = String::from_utf8_lossy(&peer.stderr);
+        eprintln!("{solver}: {}", peer_err.trim());
+        assert!(solver_out.status.success(), "{solver}: {}", String::from_utf8_lossy(&solver_out.stderr));
+        assert!(peer.status.success(), "play_peer {played}: {peer_err}");
+        assert!(peer_err.contains("matched"), "{peer_err}");
+        let (alone, coupled) = (topic_messages(&out.join(own), topic), topic_messages(&run_mcap, topic));
+        assert!(alone.len() >= 2 && alone == coupled, "{solver}: state frames differ from the coupled run");
+
+        // Out of order: exchange 5 gets exchange 6's message.
+        let (_, solver_out, peer) = play(played, solver, Some(5));
+        let solver_err = String::from_utf8_lossy(&solver_out.stderr);
+        assert!(!solver_out.status.success(), "{solver} accepted exchange 6 in place of 5");
+        assert!(solver_err.contains("received exchange 6 but expected exchange 5"), "{solver}: {solver_err}");
+        assert!(!peer.status.success(), "play_peer must notice the refusal");
+    }
+}
