@@ -10,7 +10,7 @@ use foxglove::schemas::{Color, Log, PointCloud, Pose, SceneEntity, SceneUpdate, 
 use serde::{Deserialize, Serialize};
 
 use schemas::measures::{coordination_shares, deposit_profile, front_position, FrontSample};
-use schemas::metrics::DemMetrics;
+use schemas::metrics::{CouplingTimings, DemMetrics};
 use schemas::process::RunOptions;
 use schemas::record::{
     f32_field, identity_pose, identity_quaternion, log_entry, log_level, timestamp, topics, ChannelId, RecordError,
@@ -138,6 +138,8 @@ struct Channels {
     log: ChannelId,
     /// `/dem/received_loads` (`output.record_exchange` in a coupled run).
     received: Option<ChannelId>,
+    /// `/dem/coupling` (coupled runs).
+    coupling: Option<ChannelId>,
 }
 
 struct Frames {
@@ -249,6 +251,7 @@ pub fn run(
             metrics: b.channel::<DemMetrics>(topics::DEM_METRICS)?,
             state: b.raw_channel(topics::DEM_STATE, "bincode", state_meta)?,
             log: b.channel::<Log>(topics::LOG)?,
+            coupling: if peer.is_some() { Some(b.channel::<CouplingTimings>(topics::DEM_COUPLING)?) } else { None },
             received: if peer.is_some() && out.record_exchange {
                 let meta = BTreeMap::from([("encoding".to_string(), schemas::exchange::RECEIVED_ENCODING.to_string())]);
                 Some(b.raw_channel(topics::DEM_RECEIVED_LOADS, "sgf-exchange", meta)?)
@@ -290,6 +293,8 @@ pub fn run(
     record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
 
     let mut hydro = peer.is_some().then(|| HydroExchange::from_scene(scene, dt));
+    // Cumulative (exchanges, wall s, wait s, coupling s) at the last frame.
+    let mut coupling_before = [0.0; 4];
     if let Some(h) = hydro.as_mut() {
         h.record_received = frames.channels.as_ref().is_some_and(|c| c.received.is_some());
     }
@@ -344,6 +349,13 @@ pub fn run(
             last_frame = (Instant::now(), s);
             let with_state = s.is_multiple_of(steps_per_state);
             record_frame(&mut frames, &world, scene, t_ref, &mut front, rate, with_state)?;
+            if let (Some(h), Some(rec), Some(Some(ch))) =
+                (hydro.as_ref(), frames.recorder.as_mut(), frames.channels.as_ref().map(|c| c.coupling))
+            {
+                let now = [h.exchanges as f64, started.elapsed().as_secs_f64(), h.exchange_seconds, 0.0];
+                rec.log(ch, world.time, &CouplingTimings::between(world.time, now, coupling_before))?;
+                coupling_before = now;
+            }
             last_recorded_step = s;
             if with_state {
                 last_state_step = s;

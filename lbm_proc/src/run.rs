@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use schemas::exchange::{ExchangeHeader, ParticleState, StatePeer, FLAG_STOPPING};
 use schemas::measures::{front_position, FrontSample};
-use schemas::metrics::LbmMetrics;
+use schemas::metrics::{CouplingTimings, LbmMetrics};
 use schemas::process::RunOptions;
 use schemas::record::{
     f32_field, identity_pose, log_entry, log_level, timestamp, topics, ChannelId, RecordError, Recorder,
@@ -88,6 +88,8 @@ struct Channels {
     log: ChannelId,
     /// `/lbm/received_states` (`output.record_exchange` in a coupled run).
     received: Option<ChannelId>,
+    /// `/lbm/coupling` (coupled runs).
+    coupling: Option<ChannelId>,
 }
 
 /// The recorder (when recording) and what the frames need between calls.
@@ -163,6 +165,7 @@ pub fn run(
             metrics: b.channel::<LbmMetrics>(topics::LBM_METRICS)?,
             state: b.raw_channel(topics::LBM_STATE, "bincode", state_meta)?,
             log: b.channel::<Log>(topics::LOG)?,
+            coupling: if peer.is_some() { Some(b.channel::<CouplingTimings>(topics::LBM_COUPLING)?) } else { None },
             received: if peer.is_some() && scene.spec.output.record_exchange {
                 let meta = BTreeMap::from([("encoding".to_string(), schemas::exchange::RECEIVED_ENCODING.to_string())]);
                 Some(b.raw_channel(topics::LBM_RECEIVED_STATES, "sgf-exchange", meta)?)
@@ -203,6 +206,8 @@ pub fn run(
     };
     let (mut states, mut loads) = (Vec::new(), Vec::new());
     let mut received_bytes = Vec::new();
+    // Cumulative (exchanges, wall s, wait s, coupling s) at the last frame.
+    let mut coupling_before = [0.0; 4];
     let mut exchange_seconds = 0.0;
     release_gates(&mut fluid, &setup, &mut gates_removed, time, &mut frames)?;
     record_frame(&mut frames, &fluid, scene, &setup, t_ref, time, mass_initial, 0.0)?;
@@ -275,6 +280,13 @@ pub fn run(
                 break;
             }
             record_frame(&mut frames, &fluid, scene, &setup, t_ref, time, mass_initial, mlups)?;
+            if let (Some(f), Some(rec), Some(Some(ch))) =
+                (forcing.as_ref(), frames.recorder.as_mut(), frames.channels.as_ref().map(|c| c.coupling))
+            {
+                let now = [steps as f64, started.elapsed().as_secs_f64(), exchange_seconds, f.coupling_seconds];
+                rec.log(ch, time, &CouplingTimings::between(time, now, coupling_before))?;
+                coupling_before = now;
+            }
             last_recorded = steps;
             if steps_per_state.is_some_and(|n| steps.is_multiple_of(n)) {
                 record_state(&mut frames, &fluid, time, &gates_removed)?;

@@ -64,6 +64,49 @@ pub struct LbmMetrics {
     pub pending_mass: f64,
 }
 
+/// `/dem/coupling` and `/lbm/coupling`: where a coupled process's wall time
+/// went since the previous frame, one per recorded frame.
+#[derive(Debug, Clone, Copy, Default, foxglove::Encode)]
+pub struct CouplingTimings {
+    /// Simulated time, s.
+    pub t: f64,
+    /// Exchanges done since the start of the run.
+    pub exchanges: f64,
+    /// Exchanges since the previous frame.
+    pub frame_exchanges: f64,
+    /// Wall seconds since the previous frame.
+    pub frame_seconds: f64,
+    /// Of those, seconds spent sending to and waiting for the peer (its work
+    /// on a sequential schedule, plus the transport).
+    pub wait_seconds: f64,
+    /// Of those, seconds of the coupling kernel (LBM: covering, forcing and
+    /// force sums; DEM: 0).
+    pub coupling_seconds: f64,
+    /// wait_seconds / frame_seconds.
+    pub wait_fraction: f64,
+    /// Wall milliseconds per exchange over the frame.
+    pub exchange_ms: f64,
+}
+
+impl CouplingTimings {
+    /// The frame from cumulative counters now and at the previous frame:
+    /// (exchanges, wall seconds, wait seconds, coupling seconds).
+    pub fn between(t: f64, now: [f64; 4], before: [f64; 4]) -> Self {
+        let [exchanges, frame_exchanges, frame_seconds, wait_seconds, coupling_seconds] =
+            [now[0], now[0] - before[0], now[1] - before[1], now[2] - before[2], now[3] - before[3]];
+        CouplingTimings {
+            t,
+            exchanges,
+            frame_exchanges,
+            frame_seconds,
+            wait_seconds,
+            coupling_seconds,
+            wait_fraction: if frame_seconds > 0.0 { wait_seconds / frame_seconds } else { 0.0 },
+            exchange_ms: if frame_exchanges > 0.0 { 1e3 * frame_seconds / frame_exchanges } else { 0.0 },
+        }
+    }
+}
+
 /// `/mpm/metrics`, one per recorded frame. Energies and masses are per
 /// metre of out-of-plane width (the MPM is plane strain).
 #[derive(Debug, Clone, Copy, Default, foxglove::Encode)]

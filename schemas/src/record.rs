@@ -34,6 +34,9 @@ pub mod topics {
     pub const DEM_RECEIVED_LOADS: &str = "/dem/received_loads";
     /// The grain states the LBM received, one message per exchange.
     pub const LBM_RECEIVED_STATES: &str = "/lbm/received_states";
+    /// Coupled runs: each process's wall time per frame (`CouplingTimings`).
+    pub const DEM_COUPLING: &str = "/dem/coupling";
+    pub const LBM_COUPLING: &str = "/lbm/coupling";
     pub const LBM_SURFACE: &str = "/lbm/surface";
     pub const LBM_SLICE: &str = "/lbm/slice";
     pub const LBM_METRICS: &str = "/lbm/metrics";

@@ -179,3 +179,26 @@ pub fn topic_messages(mcap_path: &Path, topic: &str) -> Vec<Vec<u8>> {
         .map(|m| m.data.into_owned())
         .collect()
 }
+
+/// The fields of a protobuf message whose fields are all `double` (wire type
+/// 1), by field number; fields at their default 0 are absent on the wire.
+pub fn proto_doubles(bytes: &[u8]) -> std::collections::BTreeMap<u64, f64> {
+    let mut out = std::collections::BTreeMap::new();
+    let mut at = 0;
+    while at < bytes.len() {
+        let (mut key, mut shift) = (0u64, 0);
+        loop {
+            let b = bytes[at];
+            at += 1;
+            key |= u64::from(b & 0x7f) << shift;
+            shift += 7;
+            if b & 0x80 == 0 {
+                break;
+            }
+        }
+        assert_eq!(key & 7, 1, "field {} is not a double", key >> 3);
+        out.insert(key >> 3, f64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()));
+        at += 8;
+    }
+    out
+}

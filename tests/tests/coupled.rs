@@ -122,6 +122,22 @@ fn replaying_the_recorded_peer_reproduces_each_process() {
         args.extend(["--set", &schedule_set]);
         let recorded = coupler_run(&format!("replay_source_{schedule}"), scene, &args);
         let run_mcap = recorded.join("run.mcap");
+        // Coupling timings, one message per frame and process: the frames'
+        // exchanges add up to the run's, the waits are parts of the frames.
+        for topic in [topics::DEM_COUPLING, topics::LBM_COUPLING] {
+            let frames: Vec<_> =
+                topic_messages(&run_mcap, topic).iter().map(|m| integration_tests::proto_doubles(m)).collect();
+            let field = |f: &std::collections::BTreeMap<u64, f64>, k: u64| f.get(&k).copied().unwrap_or(0.0);
+            assert_eq!(frames.len(), 6, "{topic}: one per frame");
+            let total: f64 = frames.iter().map(|f| field(f, 3)).sum();
+            let last = field(frames.last().unwrap(), 2);
+            assert!(total == last && last >= 239.0, "{topic}: {total} exchanges in frames, {last} in all");
+            for f in &frames {
+                let (frame, wait, share) = (field(f, 4), field(f, 5), field(f, 7));
+                assert!(frame > 0.0 && (0.0..=frame).contains(&wait), "{topic}: wait {wait} s of {frame} s");
+                assert!((share - wait / frame).abs() < 1e-12 && field(f, 8) > 0.0, "{topic}: {f:?}");
+            }
+        }
         let received = topic_messages(&run_mcap, topics::DEM_RECEIVED_LOADS);
         // The LBM also received the DEM's stop message after the last
         // exchange; concurrent, the DEM never waits for the last load.
