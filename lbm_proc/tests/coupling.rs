@@ -221,6 +221,47 @@ fn momentum_given_to_the_fluid_is_minus_what_the_spheres_receive() {
     assert!(off < 1e-15);
 }
 
+/// Σ_i f_i e_i of each cell's stored populations.
+fn cell_momenta<T: Real>(fluid: &Fluid<T>) -> Vec<[f64; 3]> {
+    let n = fluid.ncells();
+    let p = &fluid.state().populations;
+    (0..n).map(|c| std::array::from_fn(|a| (0..Q).map(|i| E[i][a] as f64 * p[i * n + c].to_f64()).sum())).collect()
+}
+
+#[test]
+fn each_exchange_the_liquid_outside_the_grains_loses_what_they_gain() {
+    // The surface force (what a free grain is given) measured against the
+    // lattice, exchange by exchange: with w_c the covered weight of cell c,
+    // the liquid outside the grains, Σ_c (1 − w_c) ΔP_c, changes by its own
+    // weight (M − m_L) a minus the grains' surface forces. Moving, spinning,
+    // overlapping and wrapping spheres in a periodic box with gravity.
+    let gravity = [0.0, 0.0, -2e-5];
+    let params = FluidParams { acceleration: gravity, ..FluidParams::new(0.6) };
+    let mut fluid = Fluid::<f64>::new([20, 18, 16], [Faces::Periodic; 3], params).expect("valid parameters");
+    let mut coupling = Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin");
+    let mass = fluid.liquid_mass();
+    let (mut worst, mut largest) = (0.0_f64, 0.0_f64);
+    for step in 0..60 {
+        let spheres = three_spheres(step as f64 * 0.05);
+        let before = cell_momenta(&fluid);
+        let forces = coupling.step(&mut fluid, &spheres).expect("valid spheres").to_vec();
+        let after = cell_momenta(&fluid);
+        let covered_liquid: f64 = forces.iter().map(|f| f.liquid_mass).sum();
+        for a in 0..3 {
+            let mut outside: f64 = (0..before.len()).map(|c| after[c][a] - before[c][a]).sum();
+            for cell in coupling.forced_cells() {
+                outside -= cell.weight * (after[cell.cell][a] - before[cell.cell][a]);
+            }
+            let to_grains: f64 = forces.iter().map(|f| f.surface_force[a]).sum();
+            worst = worst.max((outside - (mass - covered_liquid) * gravity[a] + to_grains).abs());
+            largest = largest.max(to_grains.abs());
+        }
+    }
+    println!("surface force balance: largest |sum of surface forces| {largest:.3e}, worst imbalance {worst:.3e}");
+    assert!(largest > 1e-2, "the spheres must actually push the fluid");
+    assert!(worst < 1e-12 * largest.max(1.0), "outside liquid and grains out of balance by {worst:e}");
+}
+
 #[test]
 fn results_with_spheres_do_not_depend_on_thread_count() {
     let params = FluidParams { acceleration: [0.0, 0.0, -2e-5], ..FluidParams::new(0.55) };
