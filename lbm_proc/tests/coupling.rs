@@ -49,9 +49,13 @@ struct Drag {
 /// the superficial relative velocity U. Returns the drag averaged over the
 /// last `average` of `steps` steps.
 fn drag(d: f64, l: usize, moving: bool, steps: usize, average: usize) -> Drag {
-    let tau = 1.0;
+    drag_at(d, l, moving, steps, average, 1.0, 0.1)
+}
+
+/// [`drag`] at relaxation time `tau` and particle Reynolds number `re`.
+fn drag_at(d: f64, l: usize, moving: bool, steps: usize, average: usize, tau: f64, re: f64) -> Drag {
     let nu = (tau - 0.5) / 3.0;
-    let u = 0.1 * nu / d;
+    let u = re * nu / d;
     let params = FluidParams { smagorinsky: 0.0, ..FluidParams::new(tau) };
     let mut fluid = Fluid::<f64>::new([l; 3], [Faces::Periodic; 3], params).expect("valid parameters");
     let fluid_u = if moving { 0.0 } else { u };
@@ -148,6 +152,53 @@ fn sphere_at_prescribed_velocity_feels_the_same_drag() {
     assert!(coarse.error.abs() < 0.15, "D/dx = 4: {:+.3}", coarse.error);
     assert!(fine.error.abs() < 0.08, "D/dx = 8: {:+.3}", fine.error);
     assert!(fine.error.abs() < coarse.error.abs(), "the error must shrink with D/dx");
+}
+
+/// Drag over Stokes' 3πμDU of a fixed sphere (D/dx = 8) in a periodic box
+/// of `l` cells at Re = 0.1 (τ = 1) and Re = 10 (τ = 0.6: U = 0.042, Mach
+/// 0.07); returns (growth from Re 0.1 to 10, Schiller–Naumann's growth).
+fn reynolds_growth(l: usize) -> (f64, f64) {
+    let k = (l * l) / (32 * 32);
+    let creeping = drag(8.0, l, false, 1600 * k, 400 * k);
+    let inertial = drag_at(8.0, l, false, 6000 * k, 1500 * k, 0.6, 10.0);
+    let normalised = |r: &Drag, tau: f64| {
+        let nu = (tau - 0.5) / 3.0;
+        r.force / (3.0 * PI * nu * 8.0 * (r.re * nu / 8.0))
+    };
+    let growth = normalised(&inertial, 0.6) / normalised(&creeping, 1.0);
+    let schiller_naumann = (1.0 + 0.15 * 10f64.powf(0.687)) / (1.0 + 0.15 * 0.1f64.powf(0.687));
+    println!(
+        "drag vs Re, L = {l}: F/(3 pi mu D U) = {:.4} at Re {:.2}, {:.4} at Re {:.2}: grows {growth:.4}x; \
+         an isolated sphere (Schiller-Naumann) {schiller_naumann:.4}x ({:+.1} %)",
+        normalised(&creeping, 1.0),
+        creeping.re,
+        normalised(&inertial, 0.6),
+        inertial.re,
+        100.0 * (growth / schiller_naumann - 1.0)
+    );
+    (growth, schiller_naumann)
+}
+
+#[test]
+fn drag_grows_with_reynolds_number_less_than_for_an_isolated_sphere() {
+    // In a periodic array the images screen the wake, so from Re 0.1 to 10
+    // the drag grows, but by less than Schiller–Naumann's 1.68 for an
+    // isolated sphere, and nearer it in a larger box (ignored study below).
+    // Measured at L = 4D: 1.26 (−25 %); a lattice that missed inertia would
+    // give 1, one that overshot it more than 1.68.
+    let (growth, isolated) = reynolds_growth(32);
+    assert!(growth > 1.15 && growth < isolated, "drag growth {growth} from Re 0.1 to 10 (isolated sphere {isolated})");
+}
+
+#[test]
+#[ignore = "L = 6D box (110k cells, f64, 13.5k steps): ~25 s on 2 cores"]
+fn drag_growth_with_reynolds_number_approaches_schiller_naumann_in_larger_boxes() {
+    // Measured: 1.26 at L = 4D, 1.32 at 6D (−21 %); an extrapolation in 1/L
+    // gives ~1.42, still 15 % under Schiller–Naumann: at D/dx = 8 the
+    // boundary layer (~D/√Re = 2.5 cells) is under-resolved.
+    let (small, _) = reynolds_growth(32);
+    let (large, isolated) = reynolds_growth(48);
+    assert!(small < large && large < isolated, "growth {small} (4D), {large} (6D), isolated {isolated}");
 }
 
 #[test]
