@@ -104,6 +104,12 @@ struct DamBreak {
     /// Largest KE / (potential energy released so far), over the samples
     /// where the release exceeds 1 % of the initial potential energy.
     max_ke_ratio: f64,
+    /// The same from a tenth of the initial potential energy released on
+    /// (before that, the elastic energy of the hydrostatic compression,
+    /// which the released PE leaves out, is a visible part of the KE).
+    max_ke_ratio_late: f64,
+    /// (step, released / initial PE, KE / released) at every sample.
+    ratios: Vec<(usize, f64, f64)>,
     conversions_seen: usize,
     pending: f64,
     /// Extremes of the interface fill seen at the samples.
@@ -150,6 +156,8 @@ fn dam_break_in<T: Real>(mut fluid: Fluid<T>, steps: usize, every: usize, limits
         max_drift: 0.0,
         max_ke: 0.0,
         max_ke_ratio: 0.0,
+        max_ke_ratio_late: 0.0,
+        ratios: Vec::new(),
         conversions_seen: 0,
         pending: 0.0,
         fill: (f64::MAX, f64::MIN),
@@ -172,6 +180,10 @@ fn dam_break_in<T: Real>(mut fluid: Fluid<T>, steps: usize, every: usize, limits
             let released = pe0 - potential_energy(&fluid, g);
             if released > 0.01 * pe0 {
                 out.max_ke_ratio = out.max_ke_ratio.max(ke / released);
+                out.ratios.push((s, released / pe0, ke / released));
+                if released > 0.1 * pe0 {
+                    out.max_ke_ratio_late = out.max_ke_ratio_late.max(ke / released);
+                }
             }
             for c in fluid.interface() {
                 out.fill = (out.fill.0.min(c.fill), out.fill.1.max(c.fill));
@@ -286,7 +298,7 @@ fn paper_water_case_collapsing_block_stays_bounded() {
 }
 
 #[test]
-#[ignore = "paper-size block (0.04 x 0.05 x 0.06 m in a 0.3 m box, 5 M cells, 6250 steps): ~8 min on 2 cores; fails at 0.4 s where the front splashes on the end wall (docs/lbm.md)"]
+#[ignore = "paper-size block (0.04 x 0.05 x 0.06 m in a 0.3 m box, 5 M cells, 6250 steps, through the splash on the end wall): ~7 min on 2 cores (docs/lbm.md)"]
 fn paper_water_case_full_block() {
     let (units, params) = paper_water();
     let cells = |m: f64| units.length_to_lattice(m).round() as usize;
@@ -319,7 +331,9 @@ fn paper_water_case_full_block() {
         r.fill.0,
         r.fill.1
     );
-    assert!(r.max_ke_ratio < KE_SLACK);
+    let ratios: Vec<String> = r.ratios.iter().map(|(s, f, k)| format!("{s}:{f:.3}:{k:.3}")).collect();
+    eprintln!("  (step:released/PE0:KE/released) {}", ratios.join(" "));
+    assert!(r.max_ke_ratio_late < KE_SLACK, "KE/released PE {}", r.max_ke_ratio_late);
     assert!(r.max_drift < 1e-6);
 }
 
@@ -410,10 +424,13 @@ fn splash_on_an_end_wall_keeps_the_surface_bookkeeping_bounded() {
     let mut fluid = Fluid::<f32>::new([nx, 2, nz], faces, params).expect("valid parameters");
     fluid.init_liquid(|c| c[0] < 40 && c[2] < 60).expect("in box");
     let mass0 = fluid.liquid_mass();
+    let volume = |f: &Fluid<f32>| f.fill_field().iter().sum::<f64>();
+    let volume0 = volume(&fluid);
     let g = -params.acceleration[2];
     let pe0 = potential_energy(&fluid, g);
     let limits = WatchdogLimits { max_mach: 0.5, ..WatchdogLimits::default() };
     let (mut max_fill, mut max_ratio, mut run_up) = (0.0_f64, 0.0_f64, 0usize);
+    let mut min_density = f64::MAX;
     for s in 1..=5000 {
         fluid.step();
         for c in fluid.interface() {
@@ -432,14 +449,23 @@ fn splash_on_an_end_wall_keeps_the_surface_bookkeeping_bounded() {
             if released > 0.1 * pe0 {
                 max_ratio = max_ratio.max(fluid.kinetic_energy() / released);
             }
+            for z in 0..nz {
+                for x in 0..nx {
+                    let sample = fluid.sample([x, 0, z]).expect("in box");
+                    if sample.flag == lbm_proc::fluid::flags::FLUID {
+                        min_density = min_density.min(sample.density);
+                    }
+                }
+            }
         }
     }
     let returned = fluid.returned_excess() / mass0;
+    let volume_change = volume(&fluid) / volume0 - 1.0;
     let drift = fluid.mass_drift().expect("set up").abs();
     eprintln!(
         "splash ({:.2} s): max interface fill {max_fill:.3}, run-up on the end wall to z = {run_up} cells, \
          pending given back {} times ({:.2} % of the liquid), pending now {:.2e}, mass drift {drift:.1e}, \
-         max KE/released PE {max_ratio:.3}",
+         max KE/released PE {max_ratio:.3}, lowest fluid density {min_density:.3}, liquid volume change {volume_change:+.2e}",
         units.time_to_si(5000.0),
         fluid.pending_returns(),
         100.0 * returned,
@@ -448,11 +474,15 @@ fn splash_on_an_end_wall_keeps_the_surface_bookkeeping_bounded() {
     assert!(run_up > 60, "the front must run up the end wall above the block height: z = {run_up}");
     assert!(max_fill <= 1.9 + 1e-9, "an interface cell held {max_fill} cells of liquid");
     assert!(fluid.pending_excess().abs() < 0.5, "pending excess {} left aside", fluid.pending_excess());
-    // Mass that no neighbour could hold (one-cell drops, overflow of sheets
-    // with no fluid neighbour) goes back to the bulk: measured 0.93 % of the
-    // liquid over this violent run-up and collapse, the price of a lattice
-    // two cells wide that holds no sheet thinner than a cell.
-    assert!(returned < 0.02, "{:.3} % of the liquid went back through the pending excess", 100.0 * returned);
+    // Collapsed gas pockets are filled with liquid taken from the free
+    // surface, so no density hole opens next to them (taken from their
+    // neighbours instead, the lowest fluid density fell to 0.503 here) and
+    // the liquid keeps its volume (measured +0.55 %, the acoustic breathing
+    // of a weakly compressible liquid). The deficits so routed add up to
+    // 12.9 % of the liquid's mass over the run.
+    assert!(min_density > 0.85, "a fluid cell fell to density {min_density}");
+    assert!(volume_change.abs() < 0.02, "liquid volume changed by {volume_change:e}");
+    assert!(returned.abs() < 0.5, "{:.3} of the liquid's mass went through the pending excess", returned);
     assert!(drift < 1e-6, "mass drift {drift:e}");
     assert!(max_ratio < KE_SLACK, "KE/released PE {max_ratio}");
 }

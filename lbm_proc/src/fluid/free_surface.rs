@@ -64,6 +64,10 @@ const FORCED_EMPTY: f64 = 0.1;
 /// one step (it converts in the next and passes the rest on).
 const OVERFILL_CAP: f64 = 1.9;
 
+/// Largest share of its liquid a cell gives up in one step to the deficits
+/// of neighbours that filled (collapsed gas pockets).
+const DEFICIT_CAP: f64 = 0.05;
+
 /// Pending excess (lattice mass, ρ0Δx³) above which it goes back into the
 /// liquid: spread over every fluid cell as a uniform density rise.
 const PENDING_RETURN: f64 = 0.5;
@@ -442,24 +446,45 @@ impl<T: Real> Fluid<T> {
         // piled 0.2–0.7 of a cell from each of six cells onto the few that
         // survived (fill up to 3.9; docs/lbm.md "Splashes").
         l.by_receiver.clear();
-        l.by_receiver.extend(
-            (0..l.shares.len())
-                .filter(|&s| l.shares[s].1 > 0.0 && fluid.state.flags[l.shares[s].0] == flags::INTERFACE),
-        );
-        l.by_receiver.sort_unstable_by_key(|&s| (l.shares[s].0, s));
+        l.by_receiver.extend((0..l.shares.len()).filter(|&s| {
+            let (nb, m) = l.shares[s];
+            m < 0.0 || (m > 0.0 && fluid.state.flags[nb] == flags::INTERFACE)
+        }));
+        l.by_receiver.sort_unstable_by_key(|&s| (l.shares[s].0, l.shares[s].1 < 0.0, s));
         l.overflow.clear();
         l.overflow.resize(l.excess.len(), 0.0);
         let mut g = 0;
         while g < l.by_receiver.len() {
-            let nb = l.shares[l.by_receiver[g]].0;
-            let end = g + l.by_receiver[g..].iter().take_while(|&&s| l.shares[s].0 == nb).count();
+            let (nb, first) = l.shares[l.by_receiver[g]];
+            let taking = first < 0.0;
+            let end = g + l.by_receiver[g..]
+                .iter()
+                .take_while(|&&s| l.shares[s].0 == nb && (l.shares[s].1 < 0.0) == taking)
+                .count();
             let total: f64 = l.by_receiver[g..end].iter().map(|&s| l.shares[s].1).sum();
-            let room = (OVERFILL_CAP * fluid.density_at(nb) - fluid.state.mass[nb]).max(0.0);
-            if total > room {
-                let factor = room / total;
+            // Giving: the room before the cell holds OVERFILL_CAP cells.
+            // Taking: at most DEFICIT_CAP of the liquid the cell holds; the
+            // rest of the deficit goes to the pending excess, which takes it
+            // from the free surface.
+            let (limit, amount) = if taking {
+                let held = match fluid.state.flags[nb] {
+                    flags::INTERFACE => fluid.state.mass[nb].max(0.0),
+                    _ => fluid.density_at(nb),
+                };
+                (DEFICIT_CAP * held, -total)
+            } else {
+                ((OVERFILL_CAP * fluid.density_at(nb) - fluid.state.mass[nb]).max(0.0), total)
+            };
+            if amount > limit {
+                let factor = limit / amount;
                 for &s in &l.by_receiver[g..end] {
                     let keep = l.shares[s].1 * factor;
-                    l.overflow[l.share_source[s]] += l.shares[s].1 - keep;
+                    let cut = l.shares[s].1 - keep;
+                    if taking {
+                        pending += cut;
+                    } else {
+                        l.overflow[l.share_source[s]] += cut;
+                    }
                     l.shares[s].1 = keep;
                 }
             }
@@ -486,9 +511,6 @@ impl<T: Real> Fluid<T> {
             }
         }
         self.state.pending_excess += pending;
-        if self.state.pending_excess.abs() >= PENDING_RETURN && self.scratch.fluid_count > 0 {
-            self.return_pending_excess();
-        }
         for &(nb, share) in &l.shares {
             if self.state.flags[nb] == flags::INTERFACE {
                 self.state.mass[nb] += share;
@@ -501,6 +523,9 @@ impl<T: Real> Fluid<T> {
                 self.scratch.fill[nb] = self.state.mass[nb] / self.density_at(nb);
             }
         }
+        if self.state.pending_excess.abs() >= PENDING_RETURN && self.scratch.fluid_count > 0 {
+            self.return_pending_excess();
+        }
 
         // 9. Row classes of the rows whose flags changed.
         l.rows.sort_unstable();
@@ -509,31 +534,60 @@ impl<T: Real> Fluid<T> {
         self.scratch.lists = l;
     }
 
-    /// Gives the pending excess back to the liquid: every fluid cell's density
-    /// rises by the same amount (at its velocity), so no pressure gradient and
-    /// no flow is created. Pending excess is the mass of one-cell droplets
-    /// that emptied with no liquid neighbour (a splash throws them off);
-    /// kept aside it grew to 0.5 % of the liquid in a splash on an end wall.
-    /// A pass over the box, run only when half a cell's mass has gathered.
+    /// Gives the pending excess back to the liquid through the free surface:
+    /// spread over the interface cells in proportion to what each can take
+    /// (its room ρ − m for a surplus, its mass m for a deficit), so that the
+    /// liquid's volume, not only its mass, is kept. A surplus is the mass of
+    /// one-cell drops thrown off by a splash, which fall back onto the
+    /// surface; a deficit is liquid a collapsed gas pocket was filled with,
+    /// which came from the surface. Taken next to the pocket instead, it dug
+    /// density holes down to 0.47 at a front tip; spread as density over the
+    /// whole liquid, it lowered the density everywhere. With too little
+    /// capacity at the surface, every fluid cell's density changes alike.
     fn return_pending_excess(&mut self) {
-        let count = self.scratch.fluid_count;
-        let delta = self.state.pending_excess / count as f64;
-        let mut given = 0.0;
-        let mut left = count;
-        for c in 0..self.ncells() {
-            if self.state.flags[c] != flags::FLUID {
-                continue;
+        let pending = self.state.pending_excess;
+        let capacity = |f: &Self, c: usize| {
+            let m = f.state.mass[c];
+            if pending < 0.0 {
+                m.max(0.0)
+            } else {
+                (f.density_at(c) - m).max(0.0)
             }
-            left -= 1;
-            // The last cell takes the remainder: the total is exact.
-            let share = if left == 0 { self.state.pending_excess - given } else { delta };
-            self.add_density(c, share);
-            given += share;
-            if left == 0 {
-                break;
+        };
+        let total: f64 = self.scratch.interface.iter().map(|&c| capacity(self, c)).sum();
+        if total >= pending.abs() && total > 0.0 {
+            let last = self.scratch.interface.iter().rposition(|&c| capacity(self, c) > 0.0).expect("capacity > 0");
+            let mut given = 0.0;
+            for k in 0..=last {
+                let c = self.scratch.interface[k];
+                let w = capacity(self, c);
+                if w <= 0.0 {
+                    continue;
+                }
+                // The last cell takes the remainder: the total is exact.
+                let share = if k == last { pending - given } else { pending * w / total };
+                given += share;
+                self.state.mass[c] += share;
+                self.scratch.fill[c] = self.state.mass[c] / self.density_at(c);
+            }
+        } else {
+            let count = self.scratch.fluid_count;
+            let delta = pending / count as f64;
+            let (mut given, mut left) = (0.0, count);
+            for c in 0..self.ncells() {
+                if self.state.flags[c] != flags::FLUID {
+                    continue;
+                }
+                left -= 1;
+                let share = if left == 0 { pending - given } else { delta };
+                self.add_density(c, share);
+                given += share;
+                if left == 0 {
+                    break;
+                }
             }
         }
-        self.scratch.returned_mass += self.state.pending_excess;
+        self.scratch.returned_mass += pending;
         self.state.pending_excess = 0.0;
         self.scratch.pending_returned += 1;
     }
