@@ -205,7 +205,6 @@ pub fn run(
         None => None,
     };
     let (mut states, mut loads) = (Vec::new(), Vec::new());
-    let mut received_bytes = Vec::new();
     // Cumulative (exchanges, wall s, wait s, coupling s) at the last frame.
     let mut coupling_before = [0.0; 4];
     let mut exchange_seconds = 0.0;
@@ -237,8 +236,10 @@ pub fn run(
                 (frames.recorder.as_mut(), frames.channels.as_ref().map(|c| c.received))
             {
                 let received: &[ParticleState] = if header.is_stopping() { &[] } else { &states };
-                schemas::exchange::encode_states(&header, received, &mut received_bytes);
-                rec.log_bytes(ch, time, received_bytes.clone())?;
+                // The recorder takes the buffer: one allocation per recorded exchange.
+                let mut bytes = Vec::new();
+                schemas::exchange::encode_states(&header, received, &mut bytes);
+                rec.log_bytes(ch, time, bytes)?;
             }
             if header.is_stopping() {
                 frames.log(time, log_level::INFO, &format!("dem_proc stopped at exchange {steps}"))?;

@@ -479,10 +479,11 @@ fn splash_on_an_end_wall_keeps_the_surface_bookkeeping_bounded() {
     // neighbours instead, the lowest fluid density fell to 0.503 here) and
     // the liquid keeps its volume (measured +0.55 %, the acoustic breathing
     // of a weakly compressible liquid). The deficits so routed add up to
-    // 12.9 % of the liquid's mass over the run.
+    // 12.9 % of the liquid's mass over the run (bound 20 %: a change that
+    // made pockets far more frequent would show here first).
     assert!(min_density > 0.85, "a fluid cell fell to density {min_density}");
     assert!(volume_change.abs() < 0.02, "liquid volume changed by {volume_change:e}");
-    assert!(returned.abs() < 0.5, "{:.3} of the liquid's mass went through the pending excess", returned);
+    assert!(returned.abs() < 0.2, "{:.3} of the liquid's mass went through the pending excess", returned);
     assert!(drift < 1e-6, "mass drift {drift:e}");
     assert!(max_ratio < KE_SLACK, "KE/released PE {max_ratio}");
 }

@@ -236,8 +236,9 @@ pub fn decode_states(bytes: &[u8]) -> Result<(ExchangeHeader, Vec<ParticleState>
     Ok((header, states))
 }
 
-/// The messages of `topic` in a recording, in log order.
-fn recorded_messages(path: &std::path::Path, topic: &str) -> Result<Vec<Vec<u8>>, PeerError> {
+/// The messages of `topic` in a recording, in log order; an error naming
+/// the override that records them when there are none.
+pub fn recorded_messages(path: &std::path::Path, topic: &str) -> Result<Vec<Vec<u8>>, PeerError> {
     let bytes = std::fs::read(path).map_err(|e| format!("cannot read the recording {}: {e}", path.display()))?;
     let mut out = Vec::new();
     for msg in

@@ -56,19 +56,7 @@ fn parse() -> Result<Args, String> {
 }
 
 fn messages(path: &std::path::Path, topic: &str) -> Result<Vec<Vec<u8>>, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| e.to_string())?;
-    let mut out = Vec::new();
-    for m in stream {
-        let m = m.map_err(|e| e.to_string())?;
-        if m.channel.topic == topic {
-            out.push(m.data.into_owned());
-        }
-    }
-    if out.is_empty() {
-        return Err(format!("{} has no {topic}: record with --set output.record_exchange=true", path.display()));
-    }
-    Ok(out)
+    schemas::exchange::recorded_messages(path, topic).map_err(|e| e.to_string())
 }
 
 fn same_header(a: &ExchangeHeader, b: &ExchangeHeader) -> bool {
