@@ -14,6 +14,7 @@ use rayon::prelude::*;
 use crate::fluid::{Faces, Fluid, FluidParams};
 use crate::lattice::Q;
 use crate::real::Real;
+use schemas::isa::Isa;
 
 /// Bytes moved per cell update: 19 populations read + 19 written, 1 flag byte.
 pub fn bytes_per_update<T: Real>() -> usize {
@@ -32,14 +33,32 @@ pub fn triad_bandwidth(len: usize, reps: usize) -> f64 {
         let s = 1.0 + r as f64 * 1e-3;
         let t = Instant::now();
         a.par_chunks_mut(chunk).zip(b.par_chunks(chunk)).zip(c.par_chunks(chunk)).for_each(|((a, b), c)| {
-            for i in 0..a.len() {
-                a[i] = b[i] + s * c[i];
+            match Isa::current() {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `Isa::current` returns Avx2 only where the CPU has AVX2 and FMA.
+                Isa::Avx2 => unsafe { triad_avx2(a, b, c, s) },
+                _ => triad(a, b, c, s),
             }
         });
         best = best.min(t.elapsed().as_secs_f64());
         std::hint::black_box(&a);
     }
     24.0 * len as f64 / best
+}
+
+#[inline(always)]
+fn triad(a: &mut [f64], b: &[f64], c: &[f64], s: f64) {
+    for i in 0..a.len() {
+        a[i] = b[i] + s * c[i];
+    }
+}
+
+/// The triad in the LBM kernel's instruction set, so the bound is not
+/// understated on a CPU whose wide loads move more bytes per cycle.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn triad_avx2(a: &mut [f64], b: &[f64], c: &[f64], s: f64) {
+    triad(a, b, c, s)
 }
 
 /// Million lattice updates per second of a periodic box of `dims` with the

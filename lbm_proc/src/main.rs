@@ -86,12 +86,17 @@ fn bench(bulk: &[usize], scene: Option<&PathBuf>, set: &[String], steps: u64) ->
     let dims = [bulk[0], bulk[1], bulk[2]];
     let bytes = bytes_per_update::<f32>();
     let scene = scene.map(|p| load_scene(p, set)).transpose()?;
+    let isa = schemas::isa::Isa::detected().map_err(|e| {
+        tell!("lbm_proc: {e}");
+        ExitCode::from(schemas::EXIT_BAD_SCENE as u8)
+    })?;
     for threads in [1, 2] {
         pool(threads)?.install(|| {
             let bandwidth = triad_bandwidth(1 << 24, 5);
             let bound = bandwidth / bytes as f64 / 1e6;
             let mut line = format!(
-                "{{\"threads\":{threads},\"triad_bytes_per_s\":{bandwidth:.4e},\"bytes_per_cell_update\":{bytes},\"bound_mlups\":{bound:.2}"
+                "{{\"threads\":{threads},\"isa\":\"{}\",\"triad_bytes_per_s\":{bandwidth:.4e},\"bytes_per_cell_update\":{bytes},\"bound_mlups\":{bound:.2}",
+                isa.name()
             );
             for (name, params) in [
                 ("bgk_smagorinsky", FluidParams::new(0.6)),

@@ -5,6 +5,7 @@
 pub mod contact;
 pub mod error;
 pub mod exchange;
+pub mod isa;
 pub mod link;
 pub mod measures;
 pub mod metrics;

@@ -204,7 +204,14 @@ pub fn start_run(
 /// parallel loops then start in place, where from a thread outside the pool
 /// every loop hands its work over and blocks until a worker wakes (a futex
 /// wake-up per stage, 13 % of a one-thread DEM step: docs/BENCHMARKS.md).
+///
+/// Also checks `SGF_ISA` (the kernels' instruction set, [`crate::isa`]) so
+/// that a bad value stops every binary before it starts work.
 pub fn set_global_threads(solver: &str, threads: Option<usize>) -> Result<(), std::process::ExitCode> {
+    if let Err(e) = crate::isa::Isa::detected() {
+        tell!("{solver}: {e}");
+        return Err(std::process::ExitCode::from(crate::EXIT_BAD_SCENE as u8));
+    }
     let mut builder = rayon::ThreadPoolBuilder::new().use_current_thread();
     if let Some(n) = threads {
         builder = builder.num_threads(n.max(1));
