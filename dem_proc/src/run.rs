@@ -451,6 +451,7 @@ pub fn run(
             seconds: h.exchange_seconds,
             fraction: h.exchange_seconds / wall.max(1e-9),
             kernel_seconds: 0.0,
+            forcing_gain: None,
         }),
     };
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");

@@ -52,7 +52,8 @@ fn main() {
             }
         }
     }
-    let xmax = (0..nx).rev().find(|&x| (0..nz.div_ceil(bz)).any(|zb| cnt[zb * nx.div_ceil(bx) + x / bx] > 0)).unwrap_or(0);
+    let xmax =
+        (0..nx).rev().find(|&x| (0..nz.div_ceil(bz)).any(|zb| cnt[zb * nx.div_ceil(bx) + x / bx] > 0)).unwrap_or(0);
     for zb in (0..nz.div_ceil(bz)).rev() {
         let row: Vec<usize> = (0..=xmax / bx).collect();
         if row.iter().all(|&xb| cnt[zb * nx.div_ceil(bx) + xb] == 0) {
@@ -70,4 +71,40 @@ fn main() {
         println!("{line}");
     }
     println!("lowest fluid pressure {:.2} kPa at cell {:?}", min.0 / 1e3, min.1);
+    // Layers of the column's inner part (x < 50 cells): how many cells of each kind, and the fluid's state.
+    println!(
+        "layers over x < 50: z, fluid / interface / gas cells, mean gauge p of fluid (kPa), mean u_z of liquid (m/s)"
+    );
+    for z in (0..nz).rev() {
+        let (mut nf, mut ni, mut ng, mut p, mut uz) = (0, 0, 0, 0.0, 0.0);
+        for y in 0..ny {
+            for x in 0..50.min(nx) {
+                let c = (z * ny + y) * nx + x;
+                match f.flags[c] {
+                    flags::FLUID | flags::INTERFACE => {
+                        let rho = 1.0 + (0..Q).map(|q| f.populations[q * n + c] as f64).sum::<f64>();
+                        let jz: f64 =
+                            (0..Q).map(|q| lbm_proc::lattice::E[q][2] as f64 * f.populations[q * n + c] as f64).sum();
+                        uz += jz / rho * dx / dt;
+                        if f.flags[c] == flags::FLUID {
+                            nf += 1;
+                            p += (rho - 1.0) * pa_per_drho;
+                        } else {
+                            ni += 1;
+                        }
+                    }
+                    flags::GAS => ng += 1,
+                    _ => {}
+                }
+            }
+        }
+        if nf + ni == 0 {
+            continue;
+        }
+        println!(
+            "z {z:3}: {nf:5} {ni:5} {ng:5}  p {:7.3}  u_z {:7.4}",
+            p / nf.max(1) as f64 / 1e3,
+            uz / (nf + ni) as f64
+        );
+    }
 }

@@ -19,10 +19,16 @@
 //!    capping at 1 keeps the gain ≤ 1 (a larger gain overshoots U); the
 //!    shares sum to 1, so the momentum bookkeeping stays exact.
 //! 3. **Forcing** (in the fluid kernel, [`Fluid::set_direct_forcing`]):
-//!    F_IB = w [2(ρU − Σ f e) − ρa] with w = weight × fill and
-//!    U = v_p + ω_p × (x_c − x_p): a fully covered liquid cell moves at the
-//!    rigid-body velocity in the same step. Interface cells are forced in
-//!    proportion to their fill, gas cells never.
+//!    F_IB = b [2(ρU − Σ f e) − ρa] with U = v_p + ω_p × (x_c − x_p) and
+//!    the gain b a function of the covered fraction w = weight × fill
+//!    ([`ForcingGain`]): a fully covered liquid cell moves at the
+//!    rigid-body velocity in the same step. The default gain is Noble &
+//!    Torczynski's (1998) b = w(τ0 − ½)/((1 − w) + (τ0 − ½)): at τ0 → ½ a
+//!    partly covered cell is barely forced, so the pore liquid between
+//!    grains is not held back by a drag stronger than its viscosity (with
+//!    b = w a packing at the paper's τ0 drains ~80× slower than Ergun's
+//!    flux, docs/coupling.md). Interface cells are forced in proportion to
+//!    their fill, gas cells never.
 //! 4. **Sphere force and torque**: F_h = −Σ_c share·F_IB, T_h = −Σ_c
 //!    (x_c − x_p) × share·F_IB, summed sequentially in ascending (cell,
 //!    sphere) order, so they are bit-identical for any thread count.
@@ -56,6 +62,7 @@ use rayon::prelude::*;
 use crate::fluid::{Faces, Fluid, ForcedCell};
 use crate::real::Real;
 use crate::units::Units;
+pub use schemas::scene::ForcingGain;
 
 /// A rigid sphere, SI.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -151,6 +158,8 @@ pub struct Coupling {
     results: Vec<SphereForce>,
     /// The fluid's step count when [`Coupling::apply`] last ran.
     applied_at: Option<u64>,
+    /// How partly covered cells are forced (installed in the fluid by `apply`).
+    gain: ForcingGain,
 }
 
 /// R* with R*³ + R*/4 = R³ (Newton from R; the map is monotone and convex).
@@ -261,7 +270,19 @@ impl Coupling {
             motion: Vec::new(),
             results: Vec::new(),
             applied_at: None,
+            gain: ForcingGain::default(),
         })
+    }
+
+    /// Forces partly covered cells with `gain` (default
+    /// [`ForcingGain::NobleTorczynski`]).
+    pub fn with_gain(mut self, gain: ForcingGain) -> Self {
+        self.gain = gain;
+        self
+    }
+
+    pub fn gain(&self) -> ForcingGain {
+        self.gain
     }
 
     /// Covers the cells of `spheres` and installs their forcing in `fluid`
@@ -339,6 +360,7 @@ impl Coupling {
         self.results.clear();
         self.results.resize(spheres.len(), SphereForce::default());
         self.applied_at = None;
+        fluid.set_forcing_gain(self.gain);
         fluid.set_direct_forcing(self.forced.iter().copied())?;
         self.applied_at = Some(fluid.steps());
         Ok(())

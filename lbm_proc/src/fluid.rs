@@ -34,6 +34,7 @@
 
 use rayon::prelude::*;
 use schemas::isa::Isa;
+use schemas::scene::ForcingGain;
 use serde::{Deserialize, Serialize};
 
 use crate::lattice::{E, OPP, Q, W};
@@ -677,6 +678,7 @@ impl<T: Real> Fluid<T> {
             accel: self.params.acceleration,
             forced: &forcing.cells,
             forced_rows: &forcing.rows,
+            gain: forcing.gain,
         };
         let out = SharedOut(self.scratch.next.as_mut_ptr(), self.scratch.next.len());
         let mass = SharedOut(self.state.mass.as_mut_ptr(), self.state.mass.len());
@@ -751,6 +753,7 @@ struct Kernel<'a, T> {
     /// starts (`forced_rows[r]..forced_rows[r + 1]`; empty without forcing).
     forced: &'a [ForcedCell],
     forced_rows: &'a [usize],
+    gain: ForcingGain,
 }
 
 impl<T: Real> Kernel<'_, T> {
@@ -923,12 +926,16 @@ impl<T: Real> Kernel<'_, T> {
     /// already rebuilt), folded into the lane's acceleration for the
     /// collision:
     ///
-    /// F_IB = w [2(ρU − Σ f e) − ρa], w = weight × fill (fill 1 in a fluid
-    /// cell, the old-level ε clamped to [0, 1] in an interface cell).
+    /// F_IB = b [2(ρU − Σ f e) − ρa] with w = weight × fill (fill 1 in a
+    /// fluid cell, the old-level ε clamped to [0, 1] in an interface cell)
+    /// the covered fraction and b its [`ForcingGain`].
     ///
-    /// Guo's shifted velocity is u = (Σ f e + (ρa + F_IB)/2)/ρ, so w = 1 gives
-    /// u = U exactly in this step; w < 1 moves u that fraction of the way.
+    /// Guo's shifted velocity is u = (Σ f e + (ρa + F_IB)/2)/ρ, so b = 1 gives
+    /// u = U exactly in this step; b < 1 moves u that fraction of the way.
     /// The clamp keeps the gain at most 1 (beyond it u would overshoot U).
+    /// The covered volume w (not b) sets the liquid the grain holds and the
+    /// split of the momentum balance below, so buoyancy does not depend on
+    /// the gain.
     #[inline(always)]
     fn direct_force(
         &self,
@@ -939,6 +946,7 @@ impl<T: Real> Kernel<'_, T> {
     ) -> AppliedForce {
         let fill = if self.flags[cell.cell] == flags::INTERFACE { self.fill[cell.cell].clamp(0.0, 1.0) } else { 1.0 };
         let w = cell.weight * fill;
+        let b = self.gain.gain(w, self.coef.tau0.to_f64());
         let mut drho = 0.0;
         let mut j = [0.0; 3];
         for i in 0..Q {
@@ -949,7 +957,7 @@ impl<T: Real> Kernel<'_, T> {
             }
         }
         let rho = 1.0 + drho;
-        let force: [f64; 3] = std::array::from_fn(|a| w * (2.0 * (rho * cell.target[a] - j[a]) - rho * self.accel[a]));
+        let force: [f64; 3] = std::array::from_fn(|a| b * (2.0 * (rho * cell.target[a] - j[a]) - rho * self.accel[a]));
         for a in 0..3 {
             accel[a][l] = T::from_f64(self.accel[a] + force[a] / rho);
         }

@@ -200,7 +200,9 @@ pub fn run(
 
     let mut forcing = match peer {
         Some(_) => Some(GrainForcing::new(
-            Coupling::new(setup.units, setup.origin).map_err(|source| RunError::Coupling { exchange: 0, source })?,
+            Coupling::new(setup.units, setup.origin)
+                .map_err(|source| RunError::Coupling { exchange: 0, source })?
+                .with_gain(scene.spec.coupling.forcing_gain),
         )),
         None => None,
     };
@@ -360,6 +362,7 @@ pub fn run(
             seconds: exchange_seconds,
             fraction: exchange_seconds / wall.max(1e-9),
             kernel_seconds: f.coupling_seconds,
+            forcing_gain: Some(scene.spec.coupling.forcing_gain.name().into()),
         }),
     };
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");

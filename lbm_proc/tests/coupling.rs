@@ -5,7 +5,7 @@
 
 use std::f64::consts::PI;
 
-use lbm_proc::coupling::{Coupling, CouplingError, Sphere};
+use lbm_proc::coupling::{Coupling, CouplingError, ForcingGain, Sphere};
 use lbm_proc::fluid::{Faces, Fluid, FluidParams};
 use lbm_proc::lattice::{E, Q};
 use lbm_proc::real::Real;
@@ -48,12 +48,12 @@ struct Drag {
 /// of a periodic array, which is Hasimoto's set-up, and the sphere then sees
 /// the superficial relative velocity U. Returns the drag averaged over the
 /// last `average` of `steps` steps.
-fn drag(d: f64, l: usize, moving: bool, steps: usize, average: usize) -> Drag {
-    drag_at(d, l, moving, steps, average, 1.0, 0.1)
+fn drag(d: f64, l: usize, moving: bool, steps: usize, average: usize, gain: ForcingGain) -> Drag {
+    drag_at(d, l, moving, steps, average, 1.0, 0.1, gain)
 }
 
 /// [`drag`] at relaxation time `tau` and particle Reynolds number `re`.
-fn drag_at(d: f64, l: usize, moving: bool, steps: usize, average: usize, tau: f64, re: f64) -> Drag {
+fn drag_at(d: f64, l: usize, moving: bool, steps: usize, average: usize, tau: f64, re: f64, gain: ForcingGain) -> Drag {
     let nu = (tau - 0.5) / 3.0;
     let u = re * nu / d;
     let params = FluidParams { smagorinsky: 0.0, ..FluidParams::new(tau) };
@@ -65,7 +65,7 @@ fn drag_at(d: f64, l: usize, moving: bool, steps: usize, average: usize, tau: f6
     let mass = fluid.ncells() as f64;
     let target = momentum(&fluid)[0];
     let mut p = target;
-    let mut coupling = Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin");
+    let mut coupling = Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin").with_gain(gain);
     // Off the lattice symmetry on purpose.
     let mut sphere = Sphere {
         position: [0.5 * l as f64 + 0.23, 0.5 * l as f64 + 0.11, 0.5 * l as f64 - 0.07],
@@ -130,28 +130,35 @@ fn report(name: &str, d: f64, l: usize, r: &Drag) {
     );
 }
 
+/// Stokes drag at D/Δx = 4 and 8, each gain rule: the error bounds hold the
+/// measured errors (covered fraction −7.2 % and −2.5 %; Noble–Torczynski,
+/// whose partly covered cells pull less at τ = 1, −18.1 % and −8.2 %) with
+/// a margin, and the error must shrink with D/Δx.
+fn stokes_drag_within_bounds(moving: bool) {
+    for (gain, coarse_bound, fine_bound) in
+        [(ForcingGain::CoveredFraction, 0.10, 0.04), (ForcingGain::NobleTorczynski, 0.22, 0.11)]
+    {
+        let name = format!("{} {}", if moving { "moving" } else { "fixed" }, gain.name());
+        let coarse = drag(4.0, 16, moving, 800, 200, gain);
+        report(&name, 4.0, 16, &coarse);
+        let fine = drag(8.0, 32, moving, 1600, 400, gain);
+        report(&name, 8.0, 32, &fine);
+        assert!(coarse.error.abs() < coarse_bound, "{name}, D/dx = 4: {:+.3}", coarse.error);
+        assert!(fine.error.abs() < fine_bound, "{name}, D/dx = 8: {:+.3}", fine.error);
+        assert!(fine.error.abs() < coarse.error.abs(), "{name}: the error must shrink with D/dx");
+    }
+}
+
 #[test]
 fn fixed_sphere_in_slow_uniform_flow_matches_stokes_with_hasimoto() {
     // L = 4D in both: φ = 0.0082, K = 1.52. The slowest box mode decays as
     // exp(−4π²ν t/L²): time constant 155 steps at L = 32, 39 at L = 16.
-    let coarse = drag(4.0, 16, false, 800, 200);
-    report("fixed", 4.0, 16, &coarse);
-    let fine = drag(8.0, 32, false, 1600, 400);
-    report("fixed", 8.0, 32, &fine);
-    assert!(coarse.error.abs() < 0.15, "D/dx = 4: {:+.3}", coarse.error);
-    assert!(fine.error.abs() < 0.08, "D/dx = 8: {:+.3}", fine.error);
-    assert!(fine.error.abs() < coarse.error.abs(), "the error must shrink with D/dx");
+    stokes_drag_within_bounds(false);
 }
 
 #[test]
 fn sphere_at_prescribed_velocity_feels_the_same_drag() {
-    let coarse = drag(4.0, 16, true, 800, 200);
-    report("moving", 4.0, 16, &coarse);
-    let fine = drag(8.0, 32, true, 1600, 400);
-    report("moving", 8.0, 32, &fine);
-    assert!(coarse.error.abs() < 0.15, "D/dx = 4: {:+.3}", coarse.error);
-    assert!(fine.error.abs() < 0.08, "D/dx = 8: {:+.3}", fine.error);
-    assert!(fine.error.abs() < coarse.error.abs(), "the error must shrink with D/dx");
+    stokes_drag_within_bounds(true);
 }
 
 /// Drag over Stokes' 3πμDU of a fixed sphere (D/dx = 8) in a periodic box
@@ -159,8 +166,10 @@ fn sphere_at_prescribed_velocity_feels_the_same_drag() {
 /// 0.07); returns (growth from Re 0.1 to 10, Schiller–Naumann's growth).
 fn reynolds_growth(l: usize) -> (f64, f64) {
     let k = (l * l) / (32 * 32);
-    let creeping = drag(8.0, l, false, 1600 * k, 400 * k);
-    let inertial = drag_at(8.0, l, false, 6000 * k, 1500 * k, 0.6, 10.0);
+    // The covered fraction's gain does not change with τ, so the growth is the lattice's inertia alone.
+    let gain = ForcingGain::CoveredFraction;
+    let creeping = drag(8.0, l, false, 1600 * k, 400 * k, gain);
+    let inertial = drag_at(8.0, l, false, 6000 * k, 1500 * k, 0.6, 10.0, gain);
     let normalised = |r: &Drag, tau: f64| {
         let nu = (tau - 0.5) / 3.0;
         r.force / (3.0 * PI * nu * 8.0 * (r.re * nu / 8.0))
@@ -204,9 +213,11 @@ fn drag_growth_with_reynolds_number_approaches_schiller_naumann_in_larger_boxes(
 #[test]
 #[ignore = "D/dx = 16 in a 64^3 box (262k cells, f64, 6400 steps): minutes on 2 shared cores"]
 fn drag_at_d_16() {
-    for moving in [false, true] {
-        let r = drag(16.0, 64, moving, 6400, 1600);
-        report(if moving { "moving" } else { "fixed" }, 16.0, 64, &r);
+    for gain in [ForcingGain::CoveredFraction, ForcingGain::NobleTorczynski] {
+        for moving in [false, true] {
+            let r = drag(16.0, 64, moving, 6400, 1600, gain);
+            report(&format!("{} {}", if moving { "moving" } else { "fixed" }, gain.name()), 16.0, 64, &r);
+        }
     }
 }
 
@@ -481,7 +492,8 @@ fn touching_array_drag(d: usize, steps: usize) -> f64 {
     let a = 1e-6;
     let params = FluidParams { smagorinsky: 0.0, acceleration: [a, 0.0, 0.0], ..FluidParams::new(tau) };
     let mut fluid = Fluid::<f64>::new([l; 3], [Faces::Periodic; 3], params).expect("valid parameters");
-    let mut coupling = Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin");
+    let mut coupling =
+        Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin").with_gain(ForcingGain::CoveredFraction);
     let spheres: Vec<Sphere> = (0..8)
         .map(|s| Sphere {
             position: [0, 1, 2].map(|k| (((s >> k) & 1) * d) as f64 + 0.5 * d as f64),
@@ -600,42 +612,101 @@ fn random_periodic_packing(n: usize, d: f64, l: f64, seed: u64, tolerance: f64) 
     panic!("packing of {n} spheres at D = {d} in L = {l} did not relax");
 }
 
-/// Darcy permeability (in D²) of a fixed random packing at porosity ~0.42
-/// with D/dx = `d` and the Kozeny–Carman value n³/(180 (1 − n)²) for its
-/// actual porosity: a body force g along x drives the liquid through the
-/// fixed grains (τ = 1) until the superficial velocity is steady, K = μU/(ρg).
-fn packing_permeability(d: f64) -> (f64, f64, f64) {
+/// The fixed random packing of the permeability tests: 64 grains of D/dx =
+/// `d` at porosity ~0.42 in a periodic cube; (centres, box cells, porosity).
+fn random_packing(d: f64) -> (Vec<[f64; 3]>, usize, f64) {
     let spheres_n = 64;
     let solid = 0.58;
     let l = (spheres_n as f64 * PI * d.powi(3) / 6.0 / solid).cbrt().round();
     let centres = random_periodic_packing(spheres_n, d, l, 7, 2e-3);
     let porosity = 1.0 - spheres_n as f64 * PI * d.powi(3) / 6.0 / l.powi(3);
-    let n = l as usize;
-    let g = 1e-6;
-    let params = FluidParams { acceleration: [g, 0.0, 0.0], smagorinsky: 0.0, ..FluidParams::new(1.0) };
+    (centres, l as usize, porosity)
+}
+
+/// Steady superficial velocity (lattice units; mean over every cell, grain
+/// interiors included) of liquid driven along x by body force `g` through
+/// the fixed packing of [`random_packing`]: steady when it changes by less
+/// than 1e-4 of itself over 500 steps, or after `max_steps`.
+fn packing_flux(d: f64, params: FluidParams, gain: ForcingGain, max_steps: usize) -> f64 {
+    let (centres, n, _) = random_packing(d);
     let mut fluid = Fluid::<f64>::new([n; 3], [Faces::Periodic; 3], params).expect("valid parameters");
-    let mut coupling = Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin");
+    let mut coupling = Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin").with_gain(gain);
     let spheres: Vec<Sphere> = centres
         .iter()
         .map(|&position| Sphere { position, velocity: [0.0; 3], angular_velocity: [0.0; 3], radius: 0.5 * d })
         .collect();
     let cells = (n * n * n) as f64;
-    let superficial = |fluid: &Fluid<f64>| momentum(fluid)[0] / cells;
     let (mut last, mut u) = (0.0, 0.0);
-    for step in 1..=40_000 {
+    for step in 1..=max_steps {
         coupling.step(&mut fluid, &spheres).expect("valid spheres");
         if step % 500 == 0 {
-            u = superficial(&fluid);
+            u = momentum(&fluid)[0] / cells;
             if (u - last).abs() < 1e-4 * u.abs() {
                 break;
             }
             last = u;
         }
     }
+    u
+}
+
+/// Darcy permeability (in D²) of the fixed random packing with D/dx = `d`
+/// and the Kozeny–Carman value n³/(180 (1 − n)²) for its actual porosity: a
+/// body force g drives the liquid through the fixed grains (τ = 1, Stokes
+/// flow, covered-fraction gain) until steady, K = μU/(ρg).
+fn packing_permeability(d: f64) -> (f64, f64, f64) {
+    let (_, _, porosity) = random_packing(d);
+    let g = 1e-6;
+    let params = FluidParams { acceleration: [g, 0.0, 0.0], smagorinsky: 0.0, ..FluidParams::new(1.0) };
+    let u = packing_flux(d, params, ForcingGain::CoveredFraction, 40_000);
     let mu = 1.0 / 6.0; // ν at τ = 1, ρ = 1
     let k = mu * u / g / (d * d);
     let kozeny_carman = porosity.powi(3) / (180.0 * (1.0 - porosity).powi(2));
     (k, kozeny_carman, porosity)
+}
+
+/// Ergun's superficial velocity q (lattice units) through a bed of porosity
+/// n and grain diameter d under a body force g per unit mass (ρ = 1):
+/// g = 150 ν (1 − n)² q/(n³ d²) + 1.75 (1 − n) q²/(n³ d).
+fn ergun_flux(g: f64, nu: f64, n: f64, d: f64) -> f64 {
+    let a = 150.0 * nu * (1.0 - n).powi(2) / (n.powi(3) * d * d);
+    let b = 1.75 * (1.0 - n) / (n.powi(3) * d);
+    (-a + (a * a + 4.0 * b * g).sqrt()) / (2.0 * b)
+}
+
+/// The regime of the paper's saturated column: water at Δx = 6e-4 m, Δt =
+/// 8e-5 s (τ0 = 0.500667, Smagorinsky 0.16) draining through its grains
+/// (D/Δx = 4.17) under gravity, the unit hydraulic gradient of a column
+/// that loses its water at the face. Ergun's correlation (±~30 % for random
+/// sphere beds) gives q = 3.2 cm/s at Re_p ≈ 80, mostly inertial drag.
+/// Measured: Noble–Torczynski gain 1.21× Ergun; the covered-fraction gain
+/// 0.014× (0.4 mm/s: its partly covered cells damp the pore liquid every
+/// step whatever the viscosity, and held the paper's column still,
+/// docs/coupling.md). The bounds: within 35 % of Ergun for the default,
+/// under a tenth of it for the other.
+#[test]
+fn random_packing_drains_under_gravity_at_ergun_flux_at_the_paper_tau() {
+    let units = Units::new(6e-4, 8e-5, 1000.0).expect("valid units");
+    let tau = units.tau_from_viscosity(1e-6).expect("valid viscosity");
+    let g = units.acceleration_to_lattice(9.81);
+    let d = 2.5e-3 / 6e-4;
+    let (_, _, porosity) = random_packing(d);
+    let ergun = ergun_flux(g, (tau - 0.5) / 3.0, porosity, d);
+    let params = FluidParams { acceleration: [g, 0.0, 0.0], smagorinsky: 0.16, ..FluidParams::new(tau) };
+    let mut ratios = Vec::new();
+    for gain in [ForcingGain::NobleTorczynski, ForcingGain::CoveredFraction] {
+        let q = packing_flux(d, params, gain, 4000);
+        println!(
+            "drainage at tau0 = {tau:.6}, D/dx = {d:.2}, porosity {porosity:.4}, {}: q = {:.2} mm/s, Ergun {:.2} mm/s, ratio {:.3}",
+            gain.name(),
+            1e3 * units.velocity_to_si(q),
+            1e3 * units.velocity_to_si(ergun),
+            q / ergun
+        );
+        ratios.push(q / ergun);
+    }
+    assert!((ratios[0] - 1.0).abs() < 0.35, "Noble-Torczynski: q / Ergun = {}", ratios[0]);
+    assert!(ratios[1] < 0.1, "covered fraction: q / Ergun = {}", ratios[1]);
 }
 
 #[test]

@@ -75,6 +75,9 @@ pub struct ExchangeDetails {
     /// Wall seconds in the coupling kernel itself (LBM: covering cells,
     /// forcing bookkeeping, force sums; DEM: 0).
     pub kernel_seconds: f64,
+    /// The direct forcing's gain rule (`coupling.forcing_gain`; LBM only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub forcing_gain: Option<String>,
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]

@@ -8,6 +8,8 @@
 //! plane of their cell, so each is written by one task only and the result
 //! does not depend on the thread count.
 
+use schemas::scene::ForcingGain;
+
 use super::{ConfigError, Fluid};
 use crate::real::Real;
 
@@ -17,8 +19,8 @@ use crate::real::Real;
 pub struct ForcedCell {
     /// Cell index, x fastest: `(k * ny + j) * nx + i`.
     pub cell: usize,
-    /// How far the velocity is moved toward `target` per step, in [0, 1]
-    /// (the covered fraction); an interface cell's fill multiplies it.
+    /// The covered fraction, in [0, 1]; an interface cell's fill multiplies
+    /// it. The forcing gain follows from it ([`Fluid::set_forcing_gain`]).
     pub weight: f64,
     /// The velocity the cell is forced toward.
     pub target: [f64; 3],
@@ -52,6 +54,8 @@ pub(super) struct Forcing {
     pub(super) rows: Vec<usize>,
     /// Parallel to `cells` during and after a step: what was applied.
     pub(super) applied: Vec<AppliedForce>,
+    /// How a partly covered cell's gain follows from its covered fraction.
+    pub(super) gain: ForcingGain,
 }
 
 impl Forcing {
@@ -79,8 +83,9 @@ impl<T: Real> Fluid<T> {
     ///
     /// In each step every listed fluid or interface cell receives, between
     /// the pull and the collision, the force density
-    /// F_IB = w [2(ρU − Σ f e) − ρa] (w = weight × fill), so that its
-    /// velocity becomes U when w = 1; gas and wall cells are never forced.
+    /// F_IB = b [2(ρU − Σ f e) − ρa] with b the [`ForcingGain`] of
+    /// w = weight × fill, so that its velocity becomes U when w = 1; gas and
+    /// wall cells are never forced.
     /// [`Fluid::applied_forcing`] then reports every F_IB. Not part of
     /// [`super::FluidState`]: the coupling sets it before every step.
     pub fn set_direct_forcing(&mut self, cells: impl IntoIterator<Item = ForcedCell>) -> Result<(), ConfigError> {
@@ -125,6 +130,16 @@ impl<T: Real> Fluid<T> {
             }
         }
         Ok(())
+    }
+
+    /// Sets how a partly covered cell's forcing gain follows from its
+    /// covered fraction (default [`ForcingGain::NobleTorczynski`]).
+    pub fn set_forcing_gain(&mut self, gain: ForcingGain) {
+        self.scratch.forcing.gain = gain;
+    }
+
+    pub fn forcing_gain(&self) -> ForcingGain {
+        self.scratch.forcing.gain
     }
 
     /// Removes the direct forcing.
