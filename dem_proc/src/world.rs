@@ -361,7 +361,7 @@ impl World {
         let max_move = self.kick_and_drift();
         let t1 = Instant::now();
         let interval = self.numerics.sort_interval;
-        if interval > 0 && self.step_count > 0 && self.step_count % interval == 0 {
+        if interval > 0 && self.step_count > 0 && self.step_count.is_multiple_of(interval) {
             self.sort_in_space();
             self.build_neighbours();
             self.balance_blocks();

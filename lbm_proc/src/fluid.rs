@@ -773,7 +773,7 @@ impl<T: Real> Kernel<'_, T> {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Isa::detected` returns Avx2 only where the CPU has AVX2 and FMA.
             Isa::Avx2 => unsafe { self.plane_avx2::<TRT>(z, out, mass, applied, f, accel) },
-            _ => self.plane_rows::<TRT>(z, out, mass, applied, f, accel),
+            _ => self.plane_rows::<TRT, false>(z, out, mass, applied, f, accel),
         }
     }
 
@@ -788,11 +788,11 @@ impl<T: Real> Kernel<'_, T> {
         f: &mut [[T; LANES]; Q],
         accel: &mut [[T; LANES]; 4],
     ) {
-        self.plane_rows::<TRT>(z, out, mass, applied, f, accel)
+        self.plane_rows::<TRT, true>(z, out, mass, applied, f, accel)
     }
 
     #[inline(always)]
-    fn plane_rows<const TRT: bool>(
+    fn plane_rows<const TRT: bool, const AVX2: bool>(
         &self,
         z: usize,
         out: &SharedOut<T>,
@@ -802,13 +802,15 @@ impl<T: Real> Kernel<'_, T> {
         accel: &mut [[T; LANES]; 4],
     ) {
         for y in 0..self.ny {
-            self.row::<TRT>(y, z, out, mass, applied, f, accel);
+            self.row::<TRT, AVX2>(y, z, out, mass, applied, f, accel);
         }
     }
 
     /// Streams and collides the fluid and interface cells of row (y, z).
+    /// `AVX2`: the caller runs the AVX2 build (the CPU has AVX2 and FMA), so
+    /// the out-of-line paths are called in their AVX2 builds too.
     #[inline(always)]
-    fn row<const TRT: bool>(
+    fn row<const TRT: bool, const AVX2: bool>(
         &self,
         y: usize,
         z: usize,
@@ -860,6 +862,12 @@ impl<T: Real> Kernel<'_, T> {
             if class & ROW_ANY_INTERFACE != 0 {
                 for l in 0..n {
                     if self.flags[own + l] == flags::INTERFACE {
+                        #[cfg(target_arch = "x86_64")]
+                        if AVX2 {
+                            // SAFETY: AVX2 is set only under `plane_avx2`, run only where the CPU has AVX2 and FMA.
+                            unsafe { self.interface_cell_avx2(x0 + l, y, z, l, f, mass) };
+                            continue;
+                        }
                         self.interface_cell(x0 + l, y, z, l, f, mass);
                     }
                 }
@@ -868,7 +876,12 @@ impl<T: Real> Kernel<'_, T> {
             // lanes, hold finite leftovers and are not written.
             let lanes = n.next_multiple_of(8).min(LANES);
             if k < k_end && self.forced[k].cell < own + n {
-                k = self.forced_chunk::<TRT>(k, k_end, own, n, lanes, applied, f, accel);
+                k = match AVX2 {
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: AVX2 is set only under `plane_avx2`, run only where the CPU has AVX2 and FMA.
+                    true => unsafe { self.forced_chunk_avx2::<TRT>(k, k_end, own, n, lanes, applied, f, accel) },
+                    _ => self.forced_chunk::<TRT>(k, k_end, own, n, lanes, applied, f, accel),
+                };
             } else {
                 collide::<T, TRT, false>(f, lanes, &self.coef, accel);
             }
@@ -894,6 +907,39 @@ impl<T: Real> Kernel<'_, T> {
     /// Out of line so that the unforced chunk loop keeps its code.
     #[inline(never)]
     fn forced_chunk<const TRT: bool>(
+        &self,
+        k: usize,
+        k_end: usize,
+        own: usize,
+        n: usize,
+        lanes: usize,
+        applied: &SharedOut<AppliedForce>,
+        f: &mut [[T; LANES]; Q],
+        accel: &mut [[T; LANES]; 4],
+    ) -> usize {
+        self.forced_chunk_body::<TRT>(k, k_end, own, n, lanes, applied, f, accel)
+    }
+
+    /// [`Kernel::forced_chunk`] in the AVX2 build.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    #[inline(never)]
+    unsafe fn forced_chunk_avx2<const TRT: bool>(
+        &self,
+        k: usize,
+        k_end: usize,
+        own: usize,
+        n: usize,
+        lanes: usize,
+        applied: &SharedOut<AppliedForce>,
+        f: &mut [[T; LANES]; Q],
+        accel: &mut [[T; LANES]; 4],
+    ) -> usize {
+        self.forced_chunk_body::<TRT>(k, k_end, own, n, lanes, applied, f, accel)
+    }
+
+    #[inline(always)]
+    fn forced_chunk_body<const TRT: bool>(
         &self,
         mut k: usize,
         k_end: usize,
@@ -999,6 +1045,35 @@ impl<T: Real> Kernel<'_, T> {
     ///   bit, so Σm changes only by f64 round-off.
     #[inline(never)]
     fn interface_cell(&self, x: usize, y: usize, z: usize, l: usize, f: &mut [[T; LANES]; Q], mass: &SharedOut<f64>) {
+        self.interface_cell_body(x, y, z, l, f, mass)
+    }
+
+    /// [`Kernel::interface_cell`] in the AVX2 build.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    #[inline(never)]
+    unsafe fn interface_cell_avx2(
+        &self,
+        x: usize,
+        y: usize,
+        z: usize,
+        l: usize,
+        f: &mut [[T; LANES]; Q],
+        mass: &SharedOut<f64>,
+    ) {
+        self.interface_cell_body(x, y, z, l, f, mass)
+    }
+
+    #[inline(always)]
+    fn interface_cell_body(
+        &self,
+        x: usize,
+        y: usize,
+        z: usize,
+        l: usize,
+        f: &mut [[T; LANES]; Q],
+        mass: &SharedOut<f64>,
+    ) {
         let (nx, ny, n) = (self.nx, self.ny, self.ncells);
         let c = (z * ny + y) * nx + x;
         let own: [f64; Q] = std::array::from_fn(|j| self.src[j * n + c].to_f64());
@@ -1324,6 +1399,13 @@ mod isa_tests {
         let mut fluid = Fluid::<f32>::new([70, 5, 30], [Faces::Walls, Faces::Periodic, Faces::Walls], params)
             .expect("valid parameters");
         fluid.init_liquid(|[x, _, z]| x < 20 && z < 22).expect("valid block");
+        // A grain's worth of forced cells, partly covered ones included, in the liquid and at its surface.
+        let forced = (0..fluid.ncells()).filter_map(|c| {
+            let (x, y, z) = ((c % 70) as f64, ((c / 70) % 5) as f64, (c / 350) as f64);
+            let r = ((x - 10.0).powi(2) + (y - 2.0).powi(2) + (z - 20.0).powi(2)).sqrt();
+            (r < 3.5).then(|| ForcedCell { cell: c, weight: (3.5 - r).min(1.0), target: [0.01, 0.0, -0.02] })
+        });
+        fluid.set_direct_forcing(forced).expect("valid forcing");
         fluid
     }
 
@@ -1339,8 +1421,9 @@ mod isa_tests {
                 (isa, f)
             });
             let (_, reference) = runs.next().expect("the baseline is always supported");
-            // The block must actually have moved for the comparison to mean anything.
+            // The block must actually have moved, and the forcing acted, for the comparison to mean anything.
             assert!(reference.interface_cells() > 0 && reference.max_speed() > 1e-3);
+            assert!(reference.applied_forcing().iter().any(|a| a.force.iter().any(|&x| x != 0.0)));
             for (isa, f) in runs {
                 assert!(f.state() == reference.state(), "{collision:?}: {isa:?} differs from the baseline");
             }

@@ -31,7 +31,8 @@ fn terminal_velocity(d: f64, rho_s: f64, rho_l: f64, mu: f64, g: f64, side: f64,
 /// at λ = 1/8 leave a few %, and at Re ≈ 0.3 the Oseen length D/Re ≈ 4D is
 /// the wall distance, so inertia weakens the wall effect (fast again); the
 /// closed box rings acoustically (±5 % in the velocity, period ~0.1 s),
-/// averaged over the 0.2 s window. Measured: +8.0 % (docs/coupling.md).
+/// averaged over the 0.2 s window. Measured: +5.6 % (docs/coupling.md). The
+/// scene uses the covered-fraction forcing gain, the better one at τ0 = 1.5.
 /// Mean settling velocity while the centre falls from 12D to 10D above the
 /// floor (past the start-up 5D below the lid, far from both ends), from the
 /// full-precision states of a DEM recording; and the reference there.
