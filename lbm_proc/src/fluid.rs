@@ -954,10 +954,25 @@ impl<T: Real> Kernel<'_, T> {
             accel[a] = [self.coef.accel[a]; LANES];
         }
         accel[3] = [T::ZERO; LANES];
-        while k < k_end && self.forced[k].cell < own + n {
+        let chunk_end = k + self.forced[k..k_end].partition_point(|c| c.cell < own + n);
+        // A chunk inside a packing is mostly forced cells: their moments are
+        // then summed for all lanes at once, vectorised (same operations in the
+        // same order per lane, so the same bits as one lane at a time).
+        let mut moments = None;
+        if chunk_end - k >= VECTOR_MOMENTS_FROM {
+            let mut m = LaneMoments { drho: [0.0; LANES], j: [[0.0; LANES]; 3], j_left: [[0.0; LANES]; 3] };
+            lane_moments(f, self.src, self.ncells, own, n, &mut m);
+            moments = Some(m);
+        }
+        while k < chunk_end {
             let cell = self.forced[k];
             if flags::is_liquid(self.flags[cell.cell]) {
-                let force = self.direct_force(&cell, cell.cell - own, f, accel);
+                let l = cell.cell - own;
+                let m = match &moments {
+                    Some(m) => CellMoments::of_lane(m, l),
+                    None => CellMoments::of_cell(f, self.src, self.ncells, cell.cell, l),
+                };
+                let force = self.direct_force(&cell, l, &m, accel);
                 // SAFETY: entry k's cell lies in plane z, which only this task writes.
                 unsafe { applied.slice(k, 1)[0] = force };
             }
@@ -983,26 +998,12 @@ impl<T: Real> Kernel<'_, T> {
     /// split of the momentum balance below, so buoyancy does not depend on
     /// the gain.
     #[inline(always)]
-    fn direct_force(
-        &self,
-        cell: &ForcedCell,
-        l: usize,
-        f: &[[T; LANES]; Q],
-        accel: &mut [[T; LANES]; 4],
-    ) -> AppliedForce {
+    fn direct_force(&self, cell: &ForcedCell, l: usize, m: &CellMoments, accel: &mut [[T; LANES]; 4]) -> AppliedForce {
         let fill = if self.flags[cell.cell] == flags::INTERFACE { self.fill[cell.cell].clamp(0.0, 1.0) } else { 1.0 };
         let w = cell.weight * fill;
         let b = self.gain.gain(w, self.coef.tau0.to_f64());
-        let mut drho = 0.0;
-        let mut j = [0.0; 3];
-        for i in 0..Q {
-            let g = f[i][l].to_f64();
-            drho += g;
-            for a in 0..3 {
-                j[a] += E[i][a] as f64 * g;
-            }
-        }
-        let rho = 1.0 + drho;
+        let j = m.j;
+        let rho = 1.0 + m.drho;
         let force: [f64; 3] = std::array::from_fn(|a| b * (2.0 * (rho * cell.target[a] - j[a]) - rho * self.accel[a]));
         for a in 0..3 {
             accel[a][l] = T::from_f64(self.accel[a] + force[a] / rho);
@@ -1015,14 +1016,7 @@ impl<T: Real> Kernel<'_, T> {
         // momentum are conserved at any τ, so F_IB and the surface force are
         // unchanged; partly covered cells (the grain's surface) keep τ.
         accel[3][l] = T::from_f64(if w >= 1.0 { 1.0 } else { 0.0 });
-        // What the cell held after last step's collision (the shift w_i carries no momentum).
-        let mut j_left = [0.0; 3];
-        for i in 0..Q {
-            let g = self.src[i * self.ncells + cell.cell].to_f64();
-            for a in 0..3 {
-                j_left[a] += E[i][a] as f64 * g;
-            }
-        }
+        let j_left = m.j_left;
         // The covered part's momentum balance, w·Δq = w·(inflow + F_IB + ρa),
         // leaves (1 − w)·F_IB to the uncovered part: the grain's share of the
         // forcing reaction is the rest (coupling.rs, step 6).
@@ -1147,6 +1141,72 @@ impl<T: Real> Kernel<'_, T> {
                         dst[l] = src[bounce + l];
                     }
                 }
+            }
+        }
+    }
+}
+
+/// Forced cells in a chunk from which their moments are summed for all
+/// lanes at once ([`lane_moments`]) instead of one cell at a time.
+const VECTOR_MOMENTS_FROM: usize = 16;
+
+/// Per lane of a chunk: Σg (= ρ − 1) and Σ g e of the pulled populations,
+/// and Σ g* e of what the last collision left in the cell (f64 sums).
+#[derive(Clone, Copy)]
+struct LaneMoments {
+    drho: [f64; LANES],
+    j: [[f64; LANES]; 3],
+    j_left: [[f64; LANES]; 3],
+}
+
+/// The moments of one forced cell, as [`Kernel::direct_force`] needs them.
+struct CellMoments {
+    drho: f64,
+    j: [f64; 3],
+    j_left: [f64; 3],
+}
+
+impl CellMoments {
+    fn of_lane(m: &LaneMoments, l: usize) -> CellMoments {
+        CellMoments {
+            drho: m.drho[l],
+            j: [m.j[0][l], m.j[1][l], m.j[2][l]],
+            j_left: [m.j_left[0][l], m.j_left[1][l], m.j_left[2][l]],
+        }
+    }
+
+    /// Lane `l` of `f` (pulled populations) and cell `c` of `src` (what was
+    /// left there), summed over i in ascending order as [`lane_moments`] does.
+    #[inline(always)]
+    fn of_cell<T: Real>(f: &[[T; LANES]; Q], src: &[T], ncells: usize, c: usize, l: usize) -> CellMoments {
+        let (mut drho, mut j, mut j_left) = (0.0, [0.0; 3], [0.0; 3]);
+        for i in 0..Q {
+            let g = f[i][l].to_f64();
+            drho += g;
+            let left = src[i * ncells + c].to_f64();
+            for a in 0..3 {
+                j[a] += E[i][a] as f64 * g;
+                j_left[a] += E[i][a] as f64 * left;
+            }
+        }
+        CellMoments { drho, j, j_left }
+    }
+}
+
+/// [`CellMoments::of_cell`] for lanes 0..n of a chunk whose lane 0 is cell
+/// `own`, vectorised over the lanes; lanes from n on are left as they are.
+#[inline(always)]
+fn lane_moments<T: Real>(f: &[[T; LANES]; Q], src: &[T], ncells: usize, own: usize, n: usize, m: &mut LaneMoments) {
+    for i in 0..Q {
+        let e = E[i].map(|x| x as f64);
+        let left = &src[i * ncells + own..i * ncells + own + n];
+        for l in 0..n {
+            let g = f[i][l].to_f64();
+            m.drho[l] += g;
+            let gl = left[l].to_f64();
+            for a in 0..3 {
+                m.j[a][l] += e[a] * g;
+                m.j_left[a][l] += e[a] * gl;
             }
         }
     }
@@ -1407,6 +1467,31 @@ mod isa_tests {
         });
         fluid.set_direct_forcing(forced).expect("valid forcing");
         fluid
+    }
+
+    #[test]
+    fn lane_moments_match_one_cell_at_a_time_bit_for_bit() {
+        let (ncells, own, n) = (3 * LANES, LANES + 5, 100);
+        let mut x = 0x9E37_79B9_u64;
+        let mut noise = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x % 2001) as f32 * 1e-4 - 0.1
+        };
+        let src: Vec<f32> = (0..Q * ncells).map(|_| noise()).collect();
+        let mut f = [[0.0f32; LANES]; Q];
+        f.iter_mut().flatten().for_each(|g| *g = noise());
+        let mut m = LaneMoments { drho: [0.0; LANES], j: [[0.0; LANES]; 3], j_left: [[0.0; LANES]; 3] };
+        lane_moments(&f, &src, ncells, own, n, &mut m);
+        for l in 0..n {
+            let (a, b) = (CellMoments::of_lane(&m, l), CellMoments::of_cell(&f, &src, ncells, own + l, l));
+            assert_eq!(a.drho.to_bits(), b.drho.to_bits(), "lane {l}");
+            for d in 0..3 {
+                assert_eq!(a.j[d].to_bits(), b.j[d].to_bits(), "lane {l}");
+                assert_eq!(a.j_left[d].to_bits(), b.j_left[d].to_bits(), "lane {l}");
+            }
+        }
     }
 
     #[test]
