@@ -10,14 +10,7 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     let path = &args[1];
     let bytes = std::fs::read(path).unwrap();
-    let mut lbm = None;
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let Ok(m) = m else { break };
-        if m.channel.topic == "/lbm/state" {
-            lbm = Some((m.log_time, LbmState::decode(&m.data).unwrap()));
-        }
-    }
-    let (t, s) = lbm.expect("no /lbm/state");
+    let (t, s) = LbmState::last_in_recording(&bytes).expect("a recording with an /lbm/state");
     // `max` instead of I J K: the liquid cell with the largest speed.
     let c: [usize; 3] = if args[2] == "max" {
         let f = &s.fluid;

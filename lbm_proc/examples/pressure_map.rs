@@ -14,14 +14,7 @@ fn main() {
     let (dx, dt): (f64, f64) = (args[2].parse().unwrap(), args[3].parse().unwrap());
     // `gauge` as a fourth argument: the pressure itself instead of its excess over hydrostatic.
     let gauge = args.get(4).is_some_and(|a| a == "gauge");
-    let mut lbm = None;
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let Ok(m) = m else { break };
-        if m.channel.topic == "/lbm/state" {
-            lbm = Some((m.log_time, LbmState::decode(&m.data).unwrap()));
-        }
-    }
-    let (t, s) = lbm.expect("no /lbm/state");
+    let (t, s) = LbmState::last_in_recording(&bytes).expect("a recording with an /lbm/state");
     let f = &s.fluid;
     let [nx, ny, nz] = f.dims;
     let n = nx * ny * nz;

@@ -49,6 +49,21 @@ impl LbmState {
     pub fn decode(bytes: &[u8]) -> Result<Self, String> {
         bincode::serde::decode_from_slice(bytes, bincode::config::standard()).map(|(s, _)| s).map_err(|e| e.to_string())
     }
+
+    /// The last `/lbm/state` of a recording and its log time (ns), reading
+    /// up to the first damaged record (a recording whose writer died).
+    pub fn last_in_recording(mcap_bytes: &[u8]) -> Result<(u64, LbmState), String> {
+        let stream = mcap::MessageStream::new_with_options(mcap_bytes, mcap::read::Options::IgnoreEndMagic.into())
+            .map_err(|e| format!("not an MCAP recording: {e}"))?;
+        let mut last = None;
+        for m in stream {
+            let Ok(m) = m else { break };
+            if m.channel.topic == schemas::record::topics::LBM_STATE {
+                last = Some((m.log_time, LbmState::decode(&m.data)?));
+            }
+        }
+        last.ok_or_else(|| "the recording holds no /lbm/state".to_string())
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
