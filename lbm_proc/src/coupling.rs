@@ -30,8 +30,9 @@
 //!    flux, docs/coupling.md). Interface cells are forced in proportion to
 //!    their fill, gas cells never.
 //! 4. **Sphere force and torque**: F_h = −Σ_c share·F_IB, T_h = −Σ_c
-//!    (x_c − x_p) × share·F_IB, summed sequentially in ascending (cell,
-//!    sphere) order, so they are bit-identical for any thread count.
+//!    (x_c − x_p) × share·F_IB, each sphere's summed over its own cells in
+//!    covering order (ascending cell but for periodic wraps), spheres in
+//!    parallel, so they are bit-identical for any thread count.
 //! 5. **Buoyancy**: the liquid inside a grain stays in the lattice and is held
 //!    up by the same pressure gradient as the liquid around it, so at rest
 //!    F_IB = 0 and the pressure on the grain must be added explicitly (the
@@ -113,6 +114,8 @@ pub enum CouplingError {
     Origin([f64; 3]),
     #[error("collect must follow apply and exactly one fluid step with that forcing")]
     Stale,
+    #[error("more than 2^32 cells or sphere-cell overlaps: split the box or coarsen the lattice")]
+    TooLarge,
     #[error(transparent)]
     Fluid(#[from] crate::fluid::ConfigError),
 }
@@ -120,20 +123,10 @@ pub enum CouplingError {
 /// One (cell, sphere) overlap.
 #[derive(Debug, Clone, Copy)]
 struct Overlap {
-    cell: usize,
-    sphere: usize,
+    cell: u32,
+    sphere: u32,
     eps: f64,
     /// x_c − x_p, lattice units.
-    r: [f64; 3],
-}
-
-/// One sphere's share of one forced cell.
-#[derive(Debug, Clone, Copy)]
-struct Share {
-    /// Index into the forced-cell list.
-    entry: usize,
-    sphere: usize,
-    share: f64,
     r: [f64; 3],
 }
 
@@ -142,17 +135,27 @@ struct Share {
 pub struct Coupling {
     units: Units,
     origin: [f64; 3],
+    /// Every (cell, sphere) overlap of the step, in sphere order and, per
+    /// sphere, in covering order (ascending cell but for periodic wraps).
     overlaps: Vec<Overlap>,
+    /// `overlaps[sphere_start[s]..sphere_start[s + 1]]` are sphere s's.
+    sphere_start: Vec<usize>,
     /// Per sphere: centre in lattice coordinates and ramp radius.
     placed: Vec<([f64; 3], f64)>,
     /// Overlaps of each chunk of spheres, reused.
     chunk_overlaps: Vec<Vec<Overlap>>,
-    /// Radix-sort scratch: the sorted overlaps, (cell, index) keys, digit counts.
-    sorted: Vec<Overlap>,
+    /// Radix-sort scratch: (cell, overlap index) keys and digit counts.
     keys: [Vec<(u32, u32)>; 2],
     counts: Vec<u32>,
+    /// Per overlap (same order as `overlaps`): its forced-cell entry and its
+    /// share ε_s/Σε of that cell's force.
+    entry_of: Vec<u32>,
+    share_of: Vec<f64>,
+    /// Where each parallel grouping part starts in the sorted keys, and its
+    /// first forced-cell entry.
+    part_starts: Vec<usize>,
+    part_entries: Vec<usize>,
     forced: Vec<ForcedCell>,
-    shares: Vec<Share>,
     /// Lattice-unit rigid-body velocity and angular velocity per sphere.
     motion: Vec<([f64; 3], [f64; 3])>,
     results: Vec<SphereForce>,
@@ -198,29 +201,24 @@ fn cover(index: usize, p: [f64; 3], radius: f64, dims: [usize; 3], faces: [Faces
                 let d = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt() - radius;
                 let eps = (0.5 - d).clamp(0.0, 1.0);
                 if eps > 0.0 {
-                    let cell = (kz * dims[1] + jy) * dims[0] + ix;
-                    out.push(Overlap { cell, sphere: index, eps, r });
+                    let cell = ((kz * dims[1] + jy) * dims[0] + ix) as u32;
+                    out.push(Overlap { cell, sphere: index as u32, eps, r });
                 }
             }
         }
     }
 }
 
-/// Stable LSD radix sort of `items` by cell index, result in `out`: ~600k
-/// overlaps a step in the paper's column, where a comparison sort cost more
-/// than covering the cells. Sorts (cell, index) pairs with 11-bit digits
-/// (the counts stay in L1), then gathers the 48-byte overlaps once.
-fn radix_sort_by_cell(
-    items: &[Overlap],
-    out: &mut Vec<Overlap>,
-    keys: &mut [Vec<(u32, u32)>; 2],
-    counts: &mut Vec<u32>,
-) {
+/// Stable LSD radix sort of the (cell, index) keys of `items` by cell, the
+/// result in `keys[0]`: ~600k overlaps a step in the paper's column, where
+/// a comparison sort cost more than covering the cells. 11-bit digits keep
+/// the counts in L1; the overlaps themselves are not moved.
+fn radix_sort_by_cell(items: &[Overlap], keys: &mut [Vec<(u32, u32)>; 2], counts: &mut Vec<u32>) {
     const BITS: u32 = 11;
     const BUCKETS: usize = 1 << BITS;
     let [a, b] = keys;
     a.clear();
-    a.extend(items.iter().enumerate().map(|(k, o)| (o.cell as u32, k as u32)));
+    a.extend(items.iter().enumerate().map(|(k, o)| (o.cell, k as u32)));
     let max = a.iter().map(|k| k.0).max().unwrap_or(0);
     let passes = (u32::BITS - max.leading_zeros()).div_ceil(BITS).max(1);
     for pass in 0..passes {
@@ -242,8 +240,21 @@ fn radix_sort_by_cell(
         }
         std::mem::swap(a, b);
     }
-    out.clear();
-    out.extend(a.iter().map(|k| items[k.1 as usize]));
+}
+
+/// Writes to disjoint indices of a buffer from several threads.
+struct Scatter<T>(*mut T, usize);
+// SAFETY: used only where every index is written by one task (see `apply`).
+unsafe impl<T: Send> Sync for Scatter<T> {}
+
+impl<T> Scatter<T> {
+    /// SAFETY: no other task may write index `i`, and nothing reads the
+    /// buffer until the writers are done.
+    unsafe fn write(&self, i: usize, value: T) {
+        assert!(i < self.1);
+        // SAFETY: in bounds (checked) and unaliased (caller's contract).
+        unsafe { self.0.add(i).write(value) }
+    }
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -260,13 +271,16 @@ impl Coupling {
             units,
             origin,
             overlaps: Vec::new(),
+            sphere_start: Vec::new(),
             placed: Vec::new(),
             chunk_overlaps: Vec::new(),
-            sorted: Vec::new(),
             keys: [Vec::new(), Vec::new()],
             counts: Vec::new(),
+            entry_of: Vec::new(),
+            share_of: Vec::new(),
+            part_starts: Vec::new(),
+            part_entries: Vec::new(),
             forced: Vec::new(),
-            shares: Vec::new(),
             motion: Vec::new(),
             results: Vec::new(),
             applied_at: None,
@@ -332,42 +346,118 @@ impl Coupling {
         for buffer in &self.chunk_overlaps[..chunks] {
             self.overlaps.extend_from_slice(buffer);
         }
+        if self.overlaps.len() > u32::MAX as usize || dims.iter().product::<usize>() > u32::MAX as usize {
+            return Err(CouplingError::TooLarge);
+        }
+        self.sphere_start.clear();
+        self.sphere_start.resize(spheres.len() + 1, 0);
+        for o in &self.overlaps {
+            self.sphere_start[o.sphere as usize + 1] += 1;
+        }
+        for s in 1..=spheres.len() {
+            self.sphere_start[s] += self.sphere_start[s - 1];
+        }
         // Spheres were covered in index order, so a stable sort by cell
         // leaves each cell's overlaps in ascending sphere order.
-        radix_sort_by_cell(&self.overlaps, &mut self.sorted, &mut self.keys, &mut self.counts);
-        std::mem::swap(&mut self.overlaps, &mut self.sorted);
-        self.forced.clear();
-        self.shares.clear();
-        let mut start = 0;
-        while start < self.overlaps.len() {
-            let cell = self.overlaps[start].cell;
-            let end = start + self.overlaps[start..].iter().take_while(|o| o.cell == cell).count();
-            let group = &self.overlaps[start..end];
-            let total: f64 = group.iter().map(|o| o.eps).sum();
-            let mut target = [0.0; 3];
-            let entry = self.forced.len();
-            for o in group {
-                let (v, w) = self.motion[o.sphere];
-                let rot = cross(w, o.r);
-                for a in 0..3 {
-                    target[a] += o.eps * (v[a] + rot[a]);
-                }
-                self.shares.push(Share { entry, sphere: o.sphere, share: o.eps / total, r: o.r });
-            }
-            self.forced.push(ForcedCell { cell, weight: total.min(1.0), target: target.map(|t| t / total) });
-            start = end;
-        }
+        radix_sort_by_cell(&self.overlaps, &mut self.keys, &mut self.counts);
+        self.group_by_cell();
         self.results.clear();
         self.results.resize(spheres.len(), SphereForce::default());
         self.applied_at = None;
         fluid.set_forcing_gain(self.gain);
-        fluid.set_direct_forcing(self.forced.iter().copied())?;
+        fluid.set_direct_forcing_built(&self.forced);
         self.applied_at = Some(fluid.steps());
         Ok(())
     }
 
+    /// Stage of [`Coupling::apply`]: one forced cell per run of equal cells
+    /// in the sorted keys (weight min(1, Σε), target the ε-weighted mean
+    /// velocity, summed in ascending sphere order), and each overlap's entry
+    /// and share. Parts of the key list, split between cells, run in
+    /// parallel; every entry and share is written by one part only, so the
+    /// result does not depend on the thread count.
+    fn group_by_cell(&mut self) {
+        let sorted = &self.keys[0];
+        let len = sorted.len();
+        let parts = if len < 4096 { 1 } else { 4 * rayon::current_num_threads() };
+        self.part_starts.clear();
+        for p in 0..parts {
+            let mut b = p * len / parts;
+            while b > 0 && b < len && sorted[b].0 == sorted[b - 1].0 {
+                b += 1;
+            }
+            self.part_starts.push(b.max(self.part_starts.last().copied().unwrap_or(0)));
+        }
+        self.part_starts.push(len);
+        let starts = &self.part_starts;
+        let runs = |range: std::ops::Range<usize>| {
+            let keys = &sorted[range.clone()];
+            let mut n = 0;
+            for k in 0..keys.len() {
+                if k == 0 || keys[k].0 != keys[k - 1].0 {
+                    n += 1;
+                }
+            }
+            n
+        };
+        self.part_entries.clear();
+        self.part_entries
+            .extend((0..parts).into_par_iter().map(|p| runs(starts[p]..starts[p + 1])).collect::<Vec<_>>());
+        let mut total = 0;
+        for e in self.part_entries.iter_mut() {
+            let n = *e;
+            *e = total;
+            total += n;
+        }
+        let default = ForcedCell { cell: 0, weight: 0.0, target: [0.0; 3] };
+        self.forced.clear();
+        self.forced.resize(total, default);
+        self.entry_of.clear();
+        self.entry_of.resize(self.overlaps.len(), 0);
+        self.share_of.clear();
+        self.share_of.resize(self.overlaps.len(), 0.0);
+        let forced = Scatter(self.forced.as_mut_ptr(), self.forced.len());
+        let entry_of = Scatter(self.entry_of.as_mut_ptr(), self.entry_of.len());
+        let share_of = Scatter(self.share_of.as_mut_ptr(), self.share_of.len());
+        let (overlaps, motion, part_entries) = (&self.overlaps, &self.motion, &self.part_entries);
+        (0..parts).into_par_iter().for_each(|p| {
+            let keys = &sorted[starts[p]..starts[p + 1]];
+            let mut entry = part_entries[p];
+            let mut start = 0;
+            while start < keys.len() {
+                let cell = keys[start].0;
+                let end = start + keys[start..].iter().take_while(|k| k.0 == cell).count();
+                let group = &keys[start..end];
+                let total: f64 = group.iter().map(|k| overlaps[k.1 as usize].eps).sum();
+                let mut target = [0.0; 3];
+                for k in group {
+                    let o = &overlaps[k.1 as usize];
+                    let (v, w) = motion[o.sphere as usize];
+                    let rot = cross(w, o.r);
+                    for a in 0..3 {
+                        target[a] += o.eps * (v[a] + rot[a]);
+                    }
+                    // SAFETY: overlap k.1 appears once in the keys, so only this part writes it.
+                    unsafe {
+                        entry_of.write(k.1 as usize, entry as u32);
+                        share_of.write(k.1 as usize, o.eps / total);
+                    }
+                }
+                let cell =
+                    ForcedCell { cell: cell as usize, weight: total.min(1.0), target: target.map(|t| t / total) };
+                // SAFETY: the parts' entry ranges are disjoint (prefix sums of their run counts).
+                unsafe { forced.write(entry, cell) };
+                entry += 1;
+                start = end;
+            }
+        });
+    }
+
     /// The force and torque on each sphere (in the order given to
     /// [`Coupling::apply`]) from the one step that ran since.
+    ///
+    /// Spheres in parallel; each sums its own cells in covering order, so
+    /// the result does not depend on the thread count.
     pub fn collect<T: Real>(&mut self, fluid: &Fluid<T>) -> Result<&[SphereForce], CouplingError> {
         let applied = fluid.applied_forcing();
         if self.applied_at.map(|s| s + 1) != Some(fluid.steps())
@@ -376,35 +466,36 @@ impl Coupling {
         {
             return Err(CouplingError::Stale);
         }
-        self.results.fill(SphereForce::default());
-        let sums = &mut self.results;
-        for s in &self.shares {
-            let a = applied[s.entry];
-            let f = a.force.map(|x| -s.share * x);
-            let t = cross(s.r, f);
-            let out = &mut sums[s.sphere];
-            for d in 0..3 {
-                out.force[d] += f[d];
-                out.torque[d] += t[d];
-            }
-            out.liquid_mass += s.share * a.liquid;
-            let inflow = a.inflow.map(|x| s.share * x);
-            let t = cross(s.r, inflow);
-            for d in 0..3 {
-                out.surface_force[d] += inflow[d];
-                out.surface_torque[d] += t[d];
-            }
-        }
         let g = fluid.params().acceleration;
         let mass_unit = self.units.rho0() * self.units.dx().powi(3);
-        for out in sums.iter_mut() {
-            out.buoyancy = g.map(|a| self.units.force_to_si(-out.liquid_mass * a));
-            out.force = out.force.map(|f| self.units.force_to_si(f));
-            out.torque = out.torque.map(|t| self.units.torque_to_si(t));
-            out.surface_force = out.surface_force.map(|f| self.units.force_to_si(f));
-            out.surface_torque = out.surface_torque.map(|t| self.units.torque_to_si(t));
+        let units = &self.units;
+        let (overlaps, starts, entry_of, share_of) =
+            (&self.overlaps, &self.sphere_start, &self.entry_of, &self.share_of);
+        self.results.par_iter_mut().enumerate().for_each(|(s, out)| {
+            *out = SphereForce::default();
+            for q in starts[s]..starts[s + 1] {
+                let (o, a, share) = (&overlaps[q], &applied[entry_of[q] as usize], share_of[q]);
+                let f = a.force.map(|x| -share * x);
+                let t = cross(o.r, f);
+                for d in 0..3 {
+                    out.force[d] += f[d];
+                    out.torque[d] += t[d];
+                }
+                out.liquid_mass += share * a.liquid;
+                let inflow = a.inflow.map(|x| share * x);
+                let t = cross(o.r, inflow);
+                for d in 0..3 {
+                    out.surface_force[d] += inflow[d];
+                    out.surface_torque[d] += t[d];
+                }
+            }
+            out.buoyancy = g.map(|a| units.force_to_si(-out.liquid_mass * a));
+            out.force = out.force.map(|f| units.force_to_si(f));
+            out.torque = out.torque.map(|t| units.torque_to_si(t));
+            out.surface_force = out.surface_force.map(|f| units.force_to_si(f));
+            out.surface_torque = out.surface_torque.map(|t| units.torque_to_si(t));
             out.liquid_mass *= mass_unit;
-        }
+        });
         Ok(&self.results)
     }
 
