@@ -152,6 +152,19 @@ fn print_dem_lbm(scene: &Scene, warnings: &mut Vec<String>) {
         let d_min = s.particles.iter().map(|b| b.diameter * (1.0 - b.diameter_spread)).fold(f64::INFINITY, f64::min);
         let cells = d_min / scene.lbm().spacing;
         println!("resolution   smallest grain diameter {cells:.2} lattice cells");
+        // The gain of a half-covered cell tells whether the pore liquid can move past the grains.
+        let fluid = &s.fluids[0];
+        let tau0 = 0.5 + 3.0 * fluid.viscosity / fluid.density * scene.lbm().time_step / scene.lbm().spacing.powi(2);
+        let half = c.forcing_gain.gain(0.5, tau0);
+        println!(
+            "forcing      {} gain: a half-covered cell is pulled {half:.3} of the way to the grain per step (tau0 = {tau0:.6})",
+            c.forcing_gain.name()
+        );
+        if c.forcing_gain == schemas::scene::ForcingGain::CoveredFraction && tau0 < 0.6 {
+            warnings.push(format!(
+                "coupling.forcing_gain = \"covered_fraction\" at tau0 = {tau0:.4}: partly covered cells damp the pore liquid far more than its viscosity (a packing drains ~80x too slowly at tau0 = 0.5007, docs/coupling.md); use \"noble_torczynski\""
+            ));
+        }
         if cells < 3.0 {
             warnings.push(format!(
                 "grains span only {cells:.1} cells: the direct forcing needs ~4 or more for drag within ~10 % (docs/coupling.md); lower lbm.spacing"
