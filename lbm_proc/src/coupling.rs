@@ -60,7 +60,7 @@
 
 use rayon::prelude::*;
 
-use crate::fluid::{Faces, Fluid, ForcedCell};
+use crate::fluid::{Faces, Fluid, ForcedCell, SharedOut};
 use crate::real::Real;
 use crate::units::Units;
 pub use schemas::scene::ForcingGain;
@@ -242,21 +242,6 @@ fn radix_sort_by_cell(items: &[Overlap], keys: &mut [Vec<(u32, u32)>; 2], counts
     }
 }
 
-/// Writes to disjoint indices of a buffer from several threads.
-struct Scatter<T>(*mut T, usize);
-// SAFETY: used only where every index is written by one task (see `apply`).
-unsafe impl<T: Send> Sync for Scatter<T> {}
-
-impl<T> Scatter<T> {
-    /// SAFETY: no other task may write index `i`, and nothing reads the
-    /// buffer until the writers are done.
-    unsafe fn write(&self, i: usize, value: T) {
-        assert!(i < self.1);
-        // SAFETY: in bounds (checked) and unaliased (caller's contract).
-        unsafe { self.0.add(i).write(value) }
-    }
-}
-
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
@@ -332,6 +317,10 @@ impl Coupling {
         }
         // Covering is independent per sphere: chunks of spheres in parallel,
         // each into its own reused buffer, concatenated in sphere order.
+        // Overlaps store cell and sphere indices as u32.
+        if dims.iter().product::<usize>() > u32::MAX as usize || spheres.len() > u32::MAX as usize {
+            return Err(CouplingError::TooLarge);
+        }
         let chunks = spheres.len().div_ceil(COVER_CHUNK);
         self.chunk_overlaps.resize_with(chunks.max(self.chunk_overlaps.len()), Vec::new);
         self.chunk_overlaps[..chunks].par_iter_mut().zip(self.placed.par_chunks(COVER_CHUNK)).enumerate().for_each(
@@ -346,7 +335,7 @@ impl Coupling {
         for buffer in &self.chunk_overlaps[..chunks] {
             self.overlaps.extend_from_slice(buffer);
         }
-        if self.overlaps.len() > u32::MAX as usize || dims.iter().product::<usize>() > u32::MAX as usize {
+        if self.overlaps.len() > u32::MAX as usize {
             return Err(CouplingError::TooLarge);
         }
         self.sphere_start.clear();
@@ -401,8 +390,8 @@ impl Coupling {
             n
         };
         self.part_entries.clear();
-        self.part_entries
-            .extend((0..parts).into_par_iter().map(|p| runs(starts[p]..starts[p + 1])).collect::<Vec<_>>());
+        self.part_entries.resize(parts, 0);
+        self.part_entries.par_iter_mut().enumerate().for_each(|(p, n)| *n = runs(starts[p]..starts[p + 1]));
         let mut total = 0;
         for e in self.part_entries.iter_mut() {
             let n = *e;
@@ -416,9 +405,9 @@ impl Coupling {
         self.entry_of.resize(self.overlaps.len(), 0);
         self.share_of.clear();
         self.share_of.resize(self.overlaps.len(), 0.0);
-        let forced = Scatter(self.forced.as_mut_ptr(), self.forced.len());
-        let entry_of = Scatter(self.entry_of.as_mut_ptr(), self.entry_of.len());
-        let share_of = Scatter(self.share_of.as_mut_ptr(), self.share_of.len());
+        let forced = SharedOut::new(&mut self.forced);
+        let entry_of = SharedOut::new(&mut self.entry_of);
+        let share_of = SharedOut::new(&mut self.share_of);
         let (overlaps, motion, part_entries) = (&self.overlaps, &self.motion, &self.part_entries);
         (0..parts).into_par_iter().for_each(|p| {
             let keys = &sorted[starts[p]..starts[p + 1]];
@@ -439,14 +428,14 @@ impl Coupling {
                     }
                     // SAFETY: overlap k.1 appears once in the keys, so only this part writes it.
                     unsafe {
-                        entry_of.write(k.1 as usize, entry as u32);
-                        share_of.write(k.1 as usize, o.eps / total);
+                        entry_of.slice(k.1 as usize, 1)[0] = entry as u32;
+                        share_of.slice(k.1 as usize, 1)[0] = o.eps / total;
                     }
                 }
                 let cell =
                     ForcedCell { cell: cell as usize, weight: total.min(1.0), target: target.map(|t| t / total) };
                 // SAFETY: the parts' entry ranges are disjoint (prefix sums of their run counts).
-                unsafe { forced.write(entry, cell) };
+                unsafe { forced.slice(entry, 1)[0] = cell };
                 entry += 1;
                 start = end;
             }

@@ -679,6 +679,7 @@ impl<T: Real> Fluid<T> {
             forced: &forcing.cells,
             forced_rows: &forcing.rows,
             gain: forcing.gain,
+            tau0: self.params.tau,
         };
         let out = SharedOut(self.scratch.next.as_mut_ptr(), self.scratch.next.len());
         let mass = SharedOut(self.state.mass.as_mut_ptr(), self.state.mass.len());
@@ -716,21 +717,28 @@ fn copy_lanes<T: Copy>(dst: &mut [T], src: &[T]) {
     }
 }
 
-/// The output lattice (or the mass array), written from several threads.
+/// A buffer written from several threads at disjoint indices: the output
+/// lattice, the mass array, the applied forces (here) and the coupling's
+/// forced-cell lists (`coupling.rs`).
 ///
-/// Sound because each thread handles whole z-planes and writes only indices
-/// `i * ncells + c` with c in its own plane, so no index is written twice and
-/// nothing reads `next` (or `mass`) during the step.
-struct SharedOut<T>(*mut T, usize);
+/// Sound where each index is written by one task only and nothing reads the
+/// buffer while the writers run. In the kernel each thread handles whole
+/// z-planes and writes only indices `i * ncells + c` with c in its own plane.
+pub(crate) struct SharedOut<T>(*mut T, usize);
 // SAFETY: see the type's comment; T itself is sent between threads.
 unsafe impl<T: Send> Sync for SharedOut<T> {}
 
 impl<T> SharedOut<T> {
+    /// Shares `buffer` for disjoint writes (see the type's comment).
+    pub(crate) fn new(buffer: &mut [T]) -> Self {
+        SharedOut(buffer.as_mut_ptr(), buffer.len())
+    }
+
     /// SAFETY: no other live slice may overlap `start..start + len`, and the
     /// range must lie inside the buffer.
     #[inline(always)]
     #[allow(clippy::mut_from_ref)] // the writer hands out disjoint ranges by contract, as `split_at_mut` would
-    unsafe fn slice(&self, start: usize, len: usize) -> &mut [T] {
+    pub(crate) unsafe fn slice(&self, start: usize, len: usize) -> &mut [T] {
         assert!(start + len <= self.1);
         // SAFETY: in bounds (checked above) and unaliased (caller's contract).
         unsafe { std::slice::from_raw_parts_mut(self.0.add(start), len) }
@@ -754,6 +762,9 @@ struct Kernel<'a, T> {
     forced: &'a [ForcedCell],
     forced_rows: &'a [usize],
     gain: ForcingGain,
+    /// The molecular τ0 in f64, for the forcing gain (the f32 `coef.tau0`
+    /// would round τ0 − ½ = 6.7e-4 to 4 digits).
+    tau0: f64,
 }
 
 impl<T: Real> Kernel<'_, T> {
@@ -1001,7 +1012,7 @@ impl<T: Real> Kernel<'_, T> {
     fn direct_force(&self, cell: &ForcedCell, l: usize, m: &CellMoments, accel: &mut [[T; LANES]; 4]) -> AppliedForce {
         let fill = if self.flags[cell.cell] == flags::INTERFACE { self.fill[cell.cell].clamp(0.0, 1.0) } else { 1.0 };
         let w = cell.weight * fill;
-        let b = self.gain.gain(w, self.coef.tau0.to_f64());
+        let b = self.gain.gain(w, self.tau0);
         let j = m.j;
         let rho = 1.0 + m.drho;
         let force: [f64; 3] = std::array::from_fn(|a| b * (2.0 * (rho * cell.target[a] - j[a]) - rho * self.accel[a]));
