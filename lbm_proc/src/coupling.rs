@@ -120,14 +120,47 @@ pub enum CouplingError {
     Fluid(#[from] crate::fluid::ConfigError),
 }
 
-/// One (cell, sphere) overlap.
-#[derive(Debug, Clone, Copy)]
-struct Overlap {
-    cell: u32,
+/// One row of cells (fixed y and z) that a sphere's reach crosses, and the
+/// run of cells along x it may cover there.
+#[derive(Debug, Clone, Copy, Default)]
+struct Crossing {
     sphere: u32,
-    eps: f64,
+    /// Row index `z * ny + y` (wrapped).
+    row: u32,
+    /// Unwrapped lattice y and z of the row, and the first unwrapped x of the run.
+    j: i32,
+    k: i32,
+    i_lo: i32,
+    /// Cells in the run (an upper bound on the covered ones).
+    run: u32,
+    /// First slot of the run in `Coupling::slots`; the row pass writes the
+    /// covered cells' slots from there, `covered` of them.
+    slot: u32,
+    covered: u32,
+}
+
+/// One (cell, sphere) overlap, as `collect` reads it.
+#[derive(Debug, Clone, Copy, Default)]
+struct Slot {
+    /// The cell's forced-cell entry, counted from its row's `row_base`.
+    entry: u32,
+    /// ε_s/Σε of the cell: this sphere's share of the cell's force.
+    share: f64,
     /// x_c − x_p, lattice units.
     r: [f64; 3],
+}
+
+/// Per parallel part of the row pass: a dense buffer over one row, and the
+/// forced cells the part's rows produced.
+#[derive(Debug, Clone, Default)]
+struct RowScratch {
+    /// Per x of the row: Σε, Σε(v + ω × r), the cell's entry in `cells`.
+    total: Vec<f64>,
+    target: Vec<[f64; 3]>,
+    entry: Vec<u32>,
+    /// The x of the row's covered cells, in the order first covered.
+    touched: Vec<u32>,
+    cells: Vec<ForcedCell>,
 }
 
 /// The coupling kernel with its reused buffers.
@@ -135,29 +168,30 @@ struct Overlap {
 pub struct Coupling {
     units: Units,
     origin: [f64; 3],
-    /// Every (cell, sphere) overlap of the step, in sphere order and, per
-    /// sphere, in covering order (ascending cell but for periodic wraps).
-    overlaps: Vec<Overlap>,
-    /// `overlaps[sphere_start[s]..sphere_start[s + 1]]` are sphere s's.
-    sphere_start: Vec<usize>,
     /// Per sphere: centre in lattice coordinates and ramp radius.
     placed: Vec<([f64; 3], f64)>,
-    /// Overlaps of each chunk of spheres, reused.
-    chunk_overlaps: Vec<Vec<Overlap>>,
-    /// Radix-sort scratch: (cell, overlap index) keys and digit counts.
-    keys: [Vec<(u32, u32)>; 2],
-    counts: Vec<u32>,
-    /// Per overlap (same order as `overlaps`): its forced-cell entry and its
-    /// share ε_s/Σε of that cell's force.
-    entry_of: Vec<u32>,
-    share_of: Vec<f64>,
-    /// Where each parallel grouping part starts in the sorted keys, and its
-    /// first forced-cell entry.
-    part_starts: Vec<usize>,
-    part_entries: Vec<usize>,
-    forced: Vec<ForcedCell>,
     /// Lattice-unit rigid-body velocity and angular velocity per sphere.
     motion: Vec<([f64; 3], [f64; 3])>,
+    /// The rows each sphere crosses, in sphere order and, per sphere, in
+    /// covering order (z, then y, ascending but for periodic wraps);
+    /// `crossings[sphere_start[s]..sphere_start[s + 1]]` are sphere s's.
+    crossings: Vec<Crossing>,
+    sphere_start: Vec<usize>,
+    /// Crossings of each chunk of spheres, reused.
+    chunk_crossings: Vec<Vec<Crossing>>,
+    /// Crossing indices by row (a stable counting sort: ascending sphere
+    /// within a row); `by_row[row_start[r]..row_start[r + 1]]` are row r's.
+    by_row: Vec<u32>,
+    row_start: Vec<u32>,
+    /// Row ranges of the parallel parts of the row pass, and each part's
+    /// first forced-cell entry.
+    part_rows: Vec<usize>,
+    part_entries: Vec<usize>,
+    /// Per row, the first forced-cell entry of its part (slot entries count from it).
+    row_base: Vec<u32>,
+    parts: Vec<RowScratch>,
+    slots: Vec<Slot>,
+    forced: Vec<ForcedCell>,
     results: Vec<SphereForce>,
     /// The fluid's step count when [`Coupling::apply`] last ran.
     applied_at: Option<u64>,
@@ -177,69 +211,73 @@ fn ramp_radius(r: f64) -> f64 {
 /// Spheres per parallel covering task.
 const COVER_CHUNK: usize = 256;
 
-/// Appends the cells sphere `index` covers (centre `p` in lattice
-/// coordinates, ramp radius `radius`) in ascending cell order.
-fn cover(index: usize, p: [f64; 3], radius: f64, dims: [usize; 3], faces: [Faces; 3], out: &mut Vec<Overlap>) {
+/// Appends the rows sphere `index` (centre `p` in lattice coordinates,
+/// ramp radius `radius`) crosses, each with the run of x its reach can
+/// cover there: the chord of the reach sphere, widened by a millionth of
+/// a cell so that rounding never drops a covered cell (the row pass tests
+/// every cell of the run exactly as a cell-by-cell cover would).
+fn crossings_of(index: usize, p: [f64; 3], radius: f64, dims: [usize; 3], faces: [Faces; 3], out: &mut Vec<Crossing>) {
     let reach = radius + 0.5;
     let lo: [i64; 3] = std::array::from_fn(|a| (p[a] - reach).ceil() as i64);
     let hi: [i64; 3] = std::array::from_fn(|a| (p[a] + reach).floor() as i64);
-    // The cell index along one axis, wrapped on periodic axes, None outside walls.
-    let wrap = |a: usize, i: i64| -> Option<usize> {
-        let n = dims[a] as i64;
-        match faces[a] {
-            Faces::Periodic => Some(i.rem_euclid(n) as usize),
-            Faces::Walls => (0..n).contains(&i).then_some(i as usize),
-        }
-    };
+    let inside = |a: usize, i: i64| -> Option<usize> { wrap_axis(dims[a], faces[a], i) };
     for k in lo[2]..=hi[2] {
-        let Some(kz) = wrap(2, k) else { continue };
+        let Some(kz) = inside(2, k) else { continue };
+        let dz = k as f64 - p[2];
         for j in lo[1]..=hi[1] {
-            let Some(jy) = wrap(1, j) else { continue };
-            for i in lo[0]..=hi[0] {
-                let Some(ix) = wrap(0, i) else { continue };
-                let r = [i as f64 - p[0], j as f64 - p[1], k as f64 - p[2]];
-                let d = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt() - radius;
-                let eps = (0.5 - d).clamp(0.0, 1.0);
-                if eps > 0.0 {
-                    let cell = ((kz * dims[1] + jy) * dims[0] + ix) as u32;
-                    out.push(Overlap { cell, sphere: index as u32, eps, r });
-                }
+            let Some(jy) = inside(1, j) else { continue };
+            let dy = j as f64 - p[1];
+            let h2 = reach * reach - dy * dy - dz * dz;
+            if h2 < -1e-6 {
+                continue;
             }
+            let h = h2.max(0.0).sqrt() + 1e-6;
+            let i_lo = ((p[0] - h).ceil() as i64).max(lo[0]);
+            let i_hi = ((p[0] + h).floor() as i64).min(hi[0]);
+            if i_hi < i_lo {
+                continue;
+            }
+            out.push(Crossing {
+                sphere: index as u32,
+                row: (kz * dims[1] + jy) as u32,
+                j: j as i32,
+                k: k as i32,
+                i_lo: i_lo as i32,
+                run: (i_hi - i_lo + 1) as u32,
+                slot: 0,
+                covered: 0,
+            });
         }
     }
 }
 
-/// Stable LSD radix sort of the (cell, index) keys of `items` by cell, the
-/// result in `keys[0]`: ~600k overlaps a step in the paper's column, where
-/// a comparison sort cost more than covering the cells. 11-bit digits keep
-/// the counts in L1; the overlaps themselves are not moved.
-fn radix_sort_by_cell(items: &[Overlap], keys: &mut [Vec<(u32, u32)>; 2], counts: &mut Vec<u32>) {
-    const BITS: u32 = 11;
-    const BUCKETS: usize = 1 << BITS;
-    let [a, b] = keys;
-    a.clear();
-    a.extend(items.iter().enumerate().map(|(k, o)| (o.cell, k as u32)));
-    let max = a.iter().map(|k| k.0).max().unwrap_or(0);
-    let passes = (u32::BITS - max.leading_zeros()).div_ceil(BITS).max(1);
-    for pass in 0..passes {
-        let shift = pass * BITS;
-        counts.clear();
-        counts.resize(BUCKETS + 1, 0);
-        for k in a.iter() {
-            counts[((k.0 >> shift) as usize & (BUCKETS - 1)) + 1] += 1;
-        }
-        for d in 1..=BUCKETS {
-            counts[d] += counts[d - 1];
-        }
-        b.clear();
-        b.resize(a.len(), (0, 0));
-        for k in a.iter() {
-            let d = (k.0 >> shift) as usize & (BUCKETS - 1);
-            b[counts[d] as usize] = *k;
-            counts[d] += 1;
-        }
-        std::mem::swap(a, b);
+/// The cell index along an axis of `n` cells, wrapped on a periodic axis,
+/// None outside walls.
+fn wrap_axis(n: usize, faces: Faces, i: i64) -> Option<usize> {
+    let n = n as i64;
+    match faces {
+        Faces::Periodic => Some(i.rem_euclid(n) as usize),
+        Faces::Walls => (0..n).contains(&i).then_some(i as usize),
     }
+}
+
+/// ε_s of the cell at unwrapped lattice point (i, j, k) for a sphere at `p`
+/// with ramp radius `radius`, and x_c − x_p.
+#[inline(always)]
+fn covered_fraction(i: i64, j: i64, k: i64, p: [f64; 3], radius: f64) -> (f64, [f64; 3]) {
+    let r = [i as f64 - p[0], j as f64 - p[1], k as f64 - p[2]];
+    let d = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt() - radius;
+    ((0.5 - d).clamp(0.0, 1.0), r)
+}
+
+/// Asks for the cache line holding `x` (a hint; no effect on results).
+#[inline(always)]
+fn prefetch<T>(x: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch reads nothing architecturally; `x` is a valid reference anyway.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(x as *const T as *const i8)
+    };
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -255,18 +293,19 @@ impl Coupling {
         Ok(Coupling {
             units,
             origin,
-            overlaps: Vec::new(),
-            sphere_start: Vec::new(),
             placed: Vec::new(),
-            chunk_overlaps: Vec::new(),
-            keys: [Vec::new(), Vec::new()],
-            counts: Vec::new(),
-            entry_of: Vec::new(),
-            share_of: Vec::new(),
-            part_starts: Vec::new(),
-            part_entries: Vec::new(),
-            forced: Vec::new(),
             motion: Vec::new(),
+            crossings: Vec::new(),
+            sphere_start: Vec::new(),
+            chunk_crossings: Vec::new(),
+            by_row: Vec::new(),
+            row_start: Vec::new(),
+            part_rows: Vec::new(),
+            part_entries: Vec::new(),
+            row_base: Vec::new(),
+            parts: Vec::new(),
+            slots: Vec::new(),
+            forced: Vec::new(),
             results: Vec::new(),
             applied_at: None,
             gain: ForcingGain::default(),
@@ -288,10 +327,38 @@ impl Coupling {
     /// for the next step. A sphere must be finite with radius > 0, and no
     /// wider than a periodic axis (2R + 2 cells) so that it never covers a
     /// cell twice. Parts outside a walled box cover nothing.
+    ///
+    /// Stages: [`Coupling::place`] (per sphere), [`Coupling::find_crossings`]
+    /// (the rows each sphere crosses, in parallel), [`Coupling::sort_by_row`]
+    /// (a counting sort), [`Coupling::cover_rows`] (rows in parallel: the
+    /// forced cells come out in ascending cell order, so nothing is sorted
+    /// by cell; ~600k overlaps a step in the paper's column, where a sort by
+    /// cell and the random access of grouping by it cost more than the
+    /// fluid step).
     pub fn apply<T: Real>(&mut self, fluid: &mut Fluid<T>, spheres: &[Sphere]) -> Result<(), CouplingError> {
         let dims = fluid.dims();
         let faces = fluid.state().faces;
+        // Forced cells and sphere indices are stored as u32.
+        if dims.iter().product::<usize>() > u32::MAX as usize || spheres.len() > u32::MAX as usize {
+            return Err(CouplingError::TooLarge);
+        }
+        self.place(spheres, dims, faces)?;
+        self.find_crossings(dims, faces)?;
+        self.sort_by_row(dims);
+        self.cover_rows(dims, faces);
+        self.results.clear();
+        self.results.resize(spheres.len(), SphereForce::default());
+        fluid.set_forcing_gain(self.gain);
+        fluid.set_direct_forcing_built(&self.forced);
+        self.applied_at = Some(fluid.steps());
+        Ok(())
+    }
+
+    /// Stage of [`Coupling::apply`]: checks each sphere and stores its centre
+    /// in lattice coordinates (cell i's centre at i), ramp radius and motion.
+    fn place(&mut self, spheres: &[Sphere], dims: [usize; 3], faces: [Faces; 3]) -> Result<(), CouplingError> {
         let dx = self.units.dx();
+        self.applied_at = None;
         self.motion.clear();
         self.placed.clear();
         for (index, s) in spheres.iter().enumerate() {
@@ -307,7 +374,6 @@ impl Coupling {
             if (0..3).any(|a| faces[a] == Faces::Periodic && 2.0 * reach + 1.0 > dims[a] as f64) {
                 return Err(CouplingError::Sphere { index, why: "wider than a periodic axis of the box" });
             }
-            // Lattice coordinates: cell i's centre sits at i.
             let p: [f64; 3] = std::array::from_fn(|a| (s.position[a] - self.origin[a]) / dx - 0.5);
             self.motion.push((
                 s.velocity.map(|v| self.units.velocity_to_lattice(v)),
@@ -315,131 +381,193 @@ impl Coupling {
             ));
             self.placed.push((p, radius));
         }
-        // Covering is independent per sphere: chunks of spheres in parallel,
-        // each into its own reused buffer, concatenated in sphere order.
-        // Overlaps store cell and sphere indices as u32.
-        if dims.iter().product::<usize>() > u32::MAX as usize || spheres.len() > u32::MAX as usize {
-            return Err(CouplingError::TooLarge);
-        }
-        let chunks = spheres.len().div_ceil(COVER_CHUNK);
-        self.chunk_overlaps.resize_with(chunks.max(self.chunk_overlaps.len()), Vec::new);
-        self.chunk_overlaps[..chunks].par_iter_mut().zip(self.placed.par_chunks(COVER_CHUNK)).enumerate().for_each(
-            |(c, (buffer, placed))| {
-                buffer.clear();
-                for (k, &(p, radius)) in placed.iter().enumerate() {
-                    cover(c * COVER_CHUNK + k, p, radius, dims, faces, buffer);
-                }
-            },
-        );
-        self.overlaps.clear();
-        for buffer in &self.chunk_overlaps[..chunks] {
-            self.overlaps.extend_from_slice(buffer);
-        }
-        if self.overlaps.len() > u32::MAX as usize {
-            return Err(CouplingError::TooLarge);
-        }
-        self.sphere_start.clear();
-        self.sphere_start.resize(spheres.len() + 1, 0);
-        for o in &self.overlaps {
-            self.sphere_start[o.sphere as usize + 1] += 1;
-        }
-        for s in 1..=spheres.len() {
-            self.sphere_start[s] += self.sphere_start[s - 1];
-        }
-        // Spheres were covered in index order, so a stable sort by cell
-        // leaves each cell's overlaps in ascending sphere order.
-        radix_sort_by_cell(&self.overlaps, &mut self.keys, &mut self.counts);
-        self.group_by_cell();
-        self.results.clear();
-        self.results.resize(spheres.len(), SphereForce::default());
-        self.applied_at = None;
-        fluid.set_forcing_gain(self.gain);
-        fluid.set_direct_forcing_built(&self.forced);
-        self.applied_at = Some(fluid.steps());
         Ok(())
     }
 
-    /// Stage of [`Coupling::apply`]: one forced cell per run of equal cells
-    /// in the sorted keys (weight min(1, Σε), target the ε-weighted mean
-    /// velocity, summed in ascending sphere order), and each overlap's entry
-    /// and share. Parts of the key list, split between cells, run in
-    /// parallel; every entry and share is written by one part only, so the
+    /// Stage of [`Coupling::apply`]: every sphere's crossings (chunks of
+    /// spheres in parallel, concatenated in sphere order), where each
+    /// crossing's run of slots starts, and where each sphere's crossings start.
+    fn find_crossings(&mut self, dims: [usize; 3], faces: [Faces; 3]) -> Result<(), CouplingError> {
+        let n = self.placed.len();
+        let chunks = n.div_ceil(COVER_CHUNK);
+        self.chunk_crossings.resize_with(chunks.max(self.chunk_crossings.len()), Vec::new);
+        self.chunk_crossings[..chunks].par_iter_mut().zip(self.placed.par_chunks(COVER_CHUNK)).enumerate().for_each(
+            |(c, (buffer, placed))| {
+                buffer.clear();
+                for (k, &(p, radius)) in placed.iter().enumerate() {
+                    crossings_of(c * COVER_CHUNK + k, p, radius, dims, faces, buffer);
+                }
+            },
+        );
+        self.crossings.clear();
+        self.sphere_start.clear();
+        self.sphere_start.resize(n + 1, 0);
+        let mut slots = 0usize;
+        for buffer in &self.chunk_crossings[..chunks] {
+            for c in buffer {
+                self.sphere_start[c.sphere as usize + 1] += 1;
+                self.crossings.push(Crossing { slot: slots as u32, ..*c });
+                slots += c.run as usize;
+                if slots > u32::MAX as usize {
+                    return Err(CouplingError::TooLarge);
+                }
+            }
+        }
+        for s in 1..=n {
+            self.sphere_start[s] += self.sphere_start[s - 1];
+        }
+        self.slots.resize(slots, Slot::default());
+        Ok(())
+    }
+
+    /// Stage of [`Coupling::apply`]: crossing indices grouped by row, a
+    /// stable counting sort, so each row lists its spheres in ascending order.
+    fn sort_by_row(&mut self, dims: [usize; 3]) {
+        let rows = dims[1] * dims[2];
+        self.row_start.clear();
+        self.row_start.resize(rows + 1, 0);
+        for c in &self.crossings {
+            self.row_start[c.row as usize + 1] += 1;
+        }
+        for r in 1..=rows {
+            self.row_start[r] += self.row_start[r - 1];
+        }
+        self.by_row.clear();
+        self.by_row.resize(self.crossings.len(), 0);
+        // Place from each row's end, walking backwards, which keeps the
+        // order stable and leaves each row's start one entry up.
+        let ends = &mut self.row_start;
+        for (index, c) in self.crossings.iter().enumerate().rev() {
+            let end = &mut ends[c.row as usize + 1];
+            *end -= 1;
+            self.by_row[*end as usize] = index as u32;
+        }
+        // ends[r + 1] moved back to row r's start: shift down by one.
+        ends.rotate_left(1);
+        ends[rows] = self.crossings.len() as u32;
+    }
+
+    /// Stage of [`Coupling::apply`]: each row's covered cells, rows in
+    /// parallel parts. Per row, its spheres in ascending order add their ε
+    /// and ε(v + ω × r) to a dense buffer over the row; the row's forced
+    /// cells (weight min(1, Σε), target the ε-weighted mean velocity) then
+    /// come out in ascending x, and each overlap gets its share ε/Σε and its
+    /// cell's entry. Summing weights keeps a cell half-covered by each of
+    /// two touching grains fully forced; capping at 1 keeps the gain ≤ 1.
+    /// Every row is worked by one part whatever the part count, so the
     /// result does not depend on the thread count.
-    fn group_by_cell(&mut self) {
-        let sorted = &self.keys[0];
-        let len = sorted.len();
-        let parts = if len < 4096 { 1 } else { 4 * rayon::current_num_threads() };
-        self.part_starts.clear();
-        for p in 0..parts {
-            let mut b = p * len / parts;
-            while b > 0 && b < len && sorted[b].0 == sorted[b - 1].0 {
-                b += 1;
+    fn cover_rows(&mut self, dims: [usize; 3], faces: [Faces; 3]) {
+        let (nx, rows) = (dims[0], dims[1] * dims[2]);
+        let total_crossings = self.crossings.len();
+        let parts = if total_crossings < 1024 { 1 } else { 4 * rayon::current_num_threads() };
+        self.part_rows.clear();
+        let mut row = 0;
+        self.part_rows.push(0);
+        for p in 1..parts {
+            let target = (total_crossings * p / parts) as u32;
+            while row < rows && self.row_start[row] < target {
+                row += 1;
             }
-            self.part_starts.push(b.max(self.part_starts.last().copied().unwrap_or(0)));
+            self.part_rows.push(row);
         }
-        self.part_starts.push(len);
-        let starts = &self.part_starts;
-        let runs = |range: std::ops::Range<usize>| {
-            let keys = &sorted[range.clone()];
-            let mut n = 0;
-            for k in 0..keys.len() {
-                if k == 0 || keys[k].0 != keys[k - 1].0 {
-                    n += 1;
-                }
+        self.part_rows.push(rows);
+        self.parts.resize_with(parts.max(self.parts.len()), RowScratch::default);
+        let slots = SharedOut::new(&mut self.slots);
+        let mut crossings = std::mem::take(&mut self.crossings);
+        let covered = SharedOut::new(&mut crossings);
+        let (by_row, row_start, part_rows) = (&self.by_row, &self.row_start, &self.part_rows);
+        let (placed, motion) = (&self.placed, &self.motion);
+        self.parts[..parts].par_iter_mut().enumerate().for_each(|(part, scratch)| {
+            let RowScratch { total, target, entry, touched, cells } = scratch;
+            if total.len() < nx {
+                total.resize(nx, 0.0);
+                target.resize(nx, [0.0; 3]);
+                entry.resize(nx, 0);
             }
-            n
-        };
-        self.part_entries.clear();
-        self.part_entries.resize(parts, 0);
-        self.part_entries.par_iter_mut().enumerate().for_each(|(p, n)| *n = runs(starts[p]..starts[p + 1]));
-        let mut total = 0;
-        for e in self.part_entries.iter_mut() {
-            let n = *e;
-            *e = total;
-            total += n;
-        }
-        let default = ForcedCell { cell: 0, weight: 0.0, target: [0.0; 3] };
-        self.forced.clear();
-        self.forced.resize(total, default);
-        self.entry_of.clear();
-        self.entry_of.resize(self.overlaps.len(), 0);
-        self.share_of.clear();
-        self.share_of.resize(self.overlaps.len(), 0.0);
-        let forced = SharedOut::new(&mut self.forced);
-        let entry_of = SharedOut::new(&mut self.entry_of);
-        let share_of = SharedOut::new(&mut self.share_of);
-        let (overlaps, motion, part_entries) = (&self.overlaps, &self.motion, &self.part_entries);
-        (0..parts).into_par_iter().for_each(|p| {
-            let keys = &sorted[starts[p]..starts[p + 1]];
-            let mut entry = part_entries[p];
-            let mut start = 0;
-            while start < keys.len() {
-                let cell = keys[start].0;
-                let end = start + keys[start..].iter().take_while(|k| k.0 == cell).count();
-                let group = &keys[start..end];
-                let total: f64 = group.iter().map(|k| overlaps[k.1 as usize].eps).sum();
-                let mut target = [0.0; 3];
-                for k in group {
-                    let o = &overlaps[k.1 as usize];
-                    let (v, w) = motion[o.sphere as usize];
-                    let rot = cross(w, o.r);
-                    for a in 0..3 {
-                        target[a] += o.eps * (v[a] + rot[a]);
+            cells.clear();
+            for r in part_rows[part]..part_rows[part + 1] {
+                let list = &by_row[row_start[r] as usize..row_start[r + 1] as usize];
+                if list.is_empty() {
+                    continue;
+                }
+                touched.clear();
+                for &ci in list {
+                    // SAFETY: crossing ci lies in row r, which only this part works.
+                    let c = unsafe { &mut covered.slice(ci as usize, 1)[0] };
+                    let (p, radius) = placed[c.sphere as usize];
+                    let (v, w) = motion[c.sphere as usize];
+                    // SAFETY: crossing ci's run of slots is its own.
+                    let run = unsafe { slots.slice(c.slot as usize, c.run as usize) };
+                    let mut m = 0;
+                    for t in 0..c.run as i64 {
+                        let i = c.i_lo as i64 + t;
+                        let Some(ix) = wrap_axis(nx, faces[0], i) else { continue };
+                        let (eps, rr) = covered_fraction(i, c.j as i64, c.k as i64, p, radius);
+                        if eps > 0.0 {
+                            if total[ix] == 0.0 {
+                                touched.push(ix as u32);
+                            }
+                            total[ix] += eps;
+                            let rot = cross(w, rr);
+                            for a in 0..3 {
+                                target[ix][a] += eps * (v[a] + rot[a]);
+                            }
+                            // The cell's x and ε for now; entry and share below.
+                            run[m] = Slot { entry: ix as u32, share: eps, r: rr };
+                            m += 1;
+                        }
                     }
-                    // SAFETY: overlap k.1 appears once in the keys, so only this part writes it.
-                    unsafe {
-                        entry_of.slice(k.1 as usize, 1)[0] = entry as u32;
-                        share_of.slice(k.1 as usize, 1)[0] = o.eps / total;
+                    c.covered = m as u32;
+                }
+                touched.sort_unstable();
+                for &ix in touched.iter() {
+                    let ix = ix as usize;
+                    let sum = total[ix];
+                    entry[ix] = cells.len() as u32;
+                    cells.push(ForcedCell {
+                        cell: r * nx + ix,
+                        weight: sum.min(1.0),
+                        target: target[ix].map(|t| t / sum),
+                    });
+                }
+                for &ci in list {
+                    // SAFETY: as above.
+                    let c = unsafe { &covered.slice(ci as usize, 1)[0] };
+                    let run = unsafe { slots.slice(c.slot as usize, c.covered as usize) };
+                    for slot in run {
+                        let ix = slot.entry as usize;
+                        slot.share /= total[ix];
+                        slot.entry = entry[ix];
                     }
                 }
-                let cell =
-                    ForcedCell { cell: cell as usize, weight: total.min(1.0), target: target.map(|t| t / total) };
-                // SAFETY: the parts' entry ranges are disjoint (prefix sums of their run counts).
-                unsafe { forced.slice(entry, 1)[0] = cell };
-                entry += 1;
-                start = end;
+                for &ix in touched.iter() {
+                    total[ix as usize] = 0.0;
+                    target[ix as usize] = [0.0; 3];
+                }
             }
         });
+        // Each part's cells follow the cells of the parts before it (rows
+        // ascend across parts); a slot's entry is local to its row's part.
+        self.part_entries.clear();
+        let mut sum = 0;
+        for scratch in &self.parts[..parts] {
+            self.part_entries.push(sum);
+            sum += scratch.cells.len();
+        }
+        self.forced.clear();
+        self.forced.resize(sum, ForcedCell { cell: 0, weight: 0.0, target: [0.0; 3] });
+        let forced = SharedOut::new(&mut self.forced);
+        let part_entries = &self.part_entries;
+        self.parts[..parts].par_iter().enumerate().for_each(|(part, scratch)| {
+            // SAFETY: the parts' entry ranges are disjoint (prefix sums of their counts).
+            unsafe { forced.slice(part_entries[part], scratch.cells.len()) }.copy_from_slice(&scratch.cells);
+        });
+        self.row_base.clear();
+        self.row_base.resize(rows, 0);
+        for part in 0..parts {
+            self.row_base[part_rows[part]..part_rows[part + 1]].fill(part_entries[part] as u32);
+        }
+        self.crossings = crossings;
     }
 
     /// The force and torque on each sphere (in the order given to
@@ -458,24 +586,37 @@ impl Coupling {
         let g = fluid.params().acceleration;
         let mass_unit = self.units.rho0() * self.units.dx().powi(3);
         let units = &self.units;
-        let (overlaps, starts, entry_of, share_of) =
-            (&self.overlaps, &self.sphere_start, &self.entry_of, &self.share_of);
+        let (crossings, starts, slots, row_base) = (&self.crossings, &self.sphere_start, &self.slots, &self.row_base);
         self.results.par_iter_mut().enumerate().for_each(|(s, out)| {
             *out = SphereForce::default();
-            for q in starts[s]..starts[s + 1] {
-                let (o, a, share) = (&overlaps[q], &applied[entry_of[q] as usize], share_of[q]);
-                let f = a.force.map(|x| -share * x);
-                let t = cross(o.r, f);
-                for d in 0..3 {
-                    out.force[d] += f[d];
-                    out.torque[d] += t[d];
+            // The next sphere's cells, one run per row it crosses, are
+            // scattered over the forced cells: ask for them all now, so
+            // their ~25 cache misses overlap this sphere's sums.
+            if s + 1 < starts.len() - 1 {
+                for c in &crossings[starts[s + 1]..starts[s + 2]] {
+                    let base = row_base[c.row as usize] as usize;
+                    for slot in &slots[c.slot as usize..(c.slot + c.covered) as usize] {
+                        prefetch(&applied[base + slot.entry as usize]);
+                    }
                 }
-                out.liquid_mass += share * a.liquid;
-                let inflow = a.inflow.map(|x| share * x);
-                let t = cross(o.r, inflow);
-                for d in 0..3 {
-                    out.surface_force[d] += inflow[d];
-                    out.surface_torque[d] += t[d];
+            }
+            for c in &crossings[starts[s]..starts[s + 1]] {
+                let base = row_base[c.row as usize] as usize;
+                for slot in &slots[c.slot as usize..(c.slot + c.covered) as usize] {
+                    let (a, share) = (&applied[base + slot.entry as usize], slot.share);
+                    let f = a.force.map(|x| -share * x);
+                    let t = cross(slot.r, f);
+                    for d in 0..3 {
+                        out.force[d] += f[d];
+                        out.torque[d] += t[d];
+                    }
+                    out.liquid_mass += share * a.liquid;
+                    let inflow = a.inflow.map(|x| share * x);
+                    let t = cross(slot.r, inflow);
+                    for d in 0..3 {
+                        out.surface_force[d] += inflow[d];
+                        out.surface_torque[d] += t[d];
+                    }
                 }
             }
             out.buoyancy = g.map(|a| units.force_to_si(-out.liquid_mass * a));
