@@ -214,8 +214,10 @@ const COVER_CHUNK: usize = 256;
 /// Appends the rows sphere `index` (centre `p` in lattice coordinates,
 /// ramp radius `radius`) crosses, each with the run of x its reach can
 /// cover there: the chord of the reach sphere, widened by a millionth of
-/// a cell so that rounding never drops a covered cell (the row pass tests
-/// every cell of the run exactly as a cell-by-cell cover would).
+/// the reach so that rounding never drops a covered cell (the rounding of
+/// the chord is at most ~1e-8 of the reach, where the row grazes the
+/// sphere; the row pass tests every cell of the run exactly as a
+/// cell-by-cell cover would).
 fn crossings_of(index: usize, p: [f64; 3], radius: f64, dims: [usize; 3], faces: [Faces; 3], out: &mut Vec<Crossing>) {
     let reach = radius + 0.5;
     let lo: [i64; 3] = std::array::from_fn(|a| (p[a] - reach).ceil() as i64);
@@ -228,10 +230,11 @@ fn crossings_of(index: usize, p: [f64; 3], radius: f64, dims: [usize; 3], faces:
             let Some(jy) = inside(1, j) else { continue };
             let dy = j as f64 - p[1];
             let h2 = reach * reach - dy * dy - dz * dz;
-            if h2 < -1e-6 {
+            let margin = 1e-6 * reach;
+            if h2 < -margin * margin {
                 continue;
             }
-            let h = h2.max(0.0).sqrt() + 1e-6;
+            let h = h2.max(0.0).sqrt() + margin;
             let i_lo = ((p[0] - h).ceil() as i64).max(lo[0]);
             let i_hi = ((p[0] + h).floor() as i64).min(hi[0]);
             if i_hi < i_lo {

@@ -182,6 +182,8 @@ pub enum ConfigError {
     OutOfBox { cell: [usize; 3], dims: [usize; 3] },
     #[error("state is inconsistent: {0}")]
     State(String),
+    #[error("cell {0:?} would be a fluid cell next to gas: an interface cell must separate them (set geometry before init_liquid)")]
+    FluidNextToGas([usize; 3]),
     #[error("forced cell {cell}: {why}")]
     Forcing { cell: usize, why: &'static str },
 }
@@ -338,6 +340,12 @@ impl<T: Real> Fluid<T> {
             forcing: Default::default(),
         };
         let mut fluid = Fluid { state, params, scratch, isa: Isa::current() };
+        // The kernel relies on it: only interface cells pull from gas.
+        let [nx, ny, _] = fluid.state.dims;
+        let flags = &fluid.state.flags;
+        if let Some(c) = (0..ncells).into_par_iter().find_first(|&c| flags[c] == flags::FLUID && fluid.borders_gas(c)) {
+            return Err(ConfigError::FluidNextToGas([c % nx, (c / nx) % ny, c / (nx * ny)]));
+        }
         fluid.rebuild_lists();
         fluid.classify_rows();
         Ok(fluid)
@@ -393,6 +401,9 @@ impl<T: Real> Fluid<T> {
         if flag != flags::FLUID && flag != flags::WALL {
             return Err(ConfigError::Flag(flag));
         }
+        if flag == flags::FLUID && self.borders_gas(c) {
+            return Err(ConfigError::FluidNextToGas(cell));
+        }
         let old = self.state.flags[c];
         if old == flags::INTERFACE {
             if let Ok(k) = self.scratch.interface.binary_search(&c) {
@@ -440,6 +451,20 @@ impl<T: Real> Fluid<T> {
             self.state.populations[i * n + c] = T::from_f64(g[i]);
             self.scratch.next[i * n + c] = T::from_f64(g[i]);
         }
+    }
+
+    /// Whether a D3Q19 neighbour of cell index `c` is gas.
+    fn borders_gas(&self, c: usize) -> bool {
+        let [nx, ny, nz] = self.state.dims;
+        let (x, y, z) = (c % nx, (c / nx) % ny, c / (nx * ny));
+        let faces = self.state.faces;
+        (1..Q).any(|i| {
+            let e = E[i];
+            match (wrap(x, e[0], nx, faces[0]), wrap(y, e[1], ny, faces[1]), wrap(z, e[2], nz, faces[2])) {
+                (Some(xs), Some(ys), Some(zs)) => self.state.flags[(zs * ny + ys) * nx + xs] == flags::GAS,
+                _ => false,
+            }
+        })
     }
 
     /// Density and velocity of cell index `c` (lattice units), from the
@@ -1542,6 +1567,13 @@ mod tests {
         assert!(e.to_string().contains("interface fill"), "{e}");
         assert_eq!(fluid.set_flag([0, 0, 0], flags::GAS), Err(ConfigError::Flag(flags::GAS)));
         assert!(matches!(fluid.remove_walls(&[[1, 1, 1]]), Err(ConfigError::NotWall([1, 1, 1]))));
+        // The kernel lets only interface cells pull from gas: a fluid cell
+        // next to gas is refused, from set-up and from a saved state.
+        assert_eq!(fluid.set_flag([2, 2, 3], flags::FLUID), Err(ConfigError::FluidNextToGas([2, 2, 3])));
+        assert_eq!(fluid.flag([2, 2, 3]), Ok(flags::INTERFACE), "a refused change leaves the cell as it was");
+        let mut state = fluid.state().clone();
+        state.flags[(4 * 5 + 2) * 6 + 2] = flags::FLUID;
+        assert!(matches!(Fluid::from_state(state, params), Err(ConfigError::FluidNextToGas([2, 2, 4]))));
         let p = FluidParams { kappa: 0.7, ..params };
         assert_eq!(fluid.set_params(p), Err(ConfigError::Kappa(0.7)));
     }
