@@ -8,6 +8,7 @@
 //! plane of their cell, so each is written by one task only and the result
 //! does not depend on the thread count.
 
+use rayon::prelude::*;
 use schemas::scene::ForcingGain;
 
 use super::{ConfigError, Fluid};
@@ -62,8 +63,15 @@ impl Forcing {
     /// Resets the output list to the current cells with zero force (the
     /// kernel writes liquid cells only; gas, wall and skipped rows stay 0).
     pub(super) fn start_step(&mut self) {
-        self.applied.clear();
-        self.applied.extend(self.cells.iter().map(|c| AppliedForce { cell: c.cell, ..Default::default() }));
+        // ~450k entries (29 MB) a step in the paper's column: in parallel.
+        self.applied.resize(self.cells.len(), AppliedForce::default());
+        self.applied.par_chunks_mut(PARALLEL_COPY_CHUNK).zip(self.cells.par_chunks(PARALLEL_COPY_CHUNK)).for_each(
+            |(applied, cells)| {
+                for (a, c) in applied.iter_mut().zip(cells) {
+                    *a = AppliedForce { cell: c.cell, ..Default::default() };
+                }
+            },
+        );
     }
 
     /// The force applied to cell index `c` in the last step (0 if unforced).
@@ -74,6 +82,9 @@ impl Forcing {
         }
     }
 }
+
+/// Entries per parallel task when copying or resetting the forcing lists.
+const PARALLEL_COPY_CHUNK: usize = 16 * 1024;
 
 impl<T: Real> Fluid<T> {
     /// Replaces the direct forcing applied from the next step on (until
@@ -134,8 +145,12 @@ impl<T: Real> Fluid<T> {
             "the coupling built an invalid forcing list"
         );
         let forcing = &mut self.scratch.forcing;
-        forcing.cells.clear();
-        forcing.cells.extend_from_slice(cells);
+        forcing.cells.resize(cells.len(), ForcedCell { cell: 0, weight: 0.0, target: [0.0; 3] });
+        forcing
+            .cells
+            .par_chunks_mut(PARALLEL_COPY_CHUNK)
+            .zip(cells.par_chunks(PARALLEL_COPY_CHUNK))
+            .for_each(|(dst, src)| dst.copy_from_slice(src));
         self.index_forcing_rows();
     }
 
