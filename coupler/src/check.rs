@@ -154,7 +154,9 @@ fn print_dem_lbm(scene: &Scene, warnings: &mut Vec<String>) {
         println!("resolution   smallest grain diameter {cells:.2} lattice cells");
         // The gain of a half-covered cell tells whether the pore liquid can move past the grains.
         let fluid = &s.fluids[0];
-        let tau0 = 0.5 + 3.0 * fluid.viscosity / fluid.density * scene.lbm().time_step / scene.lbm().spacing.powi(2);
+        let tau0 = lbm_proc::Units::new(scene.lbm().spacing, scene.lbm().time_step, fluid.density)
+            .and_then(|u| u.tau_from_viscosity(fluid.viscosity / fluid.density))
+            .unwrap_or(f64::NAN);
         let half = c.forcing_gain.gain(0.5, tau0);
         println!(
             "forcing      {} gain: a half-covered cell is pulled {half:.3} of the way to the grain per step (tau0 = {tau0:.6})",
