@@ -535,19 +535,13 @@ impl<T: Real> Fluid<T> {
     /// moments in a packed bed (every liquid cell forced).
     fn plane_liquid_moments(&self, z: usize, mut visit: impl FnMut(usize, f64, [f64; 3])) {
         let [nx, ny, _] = self.state.dims;
-        let applied = &self.scratch.forcing.applied;
         let (start, end) = (z * nx * ny, (z + 1) * nx * ny);
-        let mut k = applied.partition_point(|a| a.cell < start);
+        let mut forced = self.scratch.forcing.cursor_from(start);
         for c in start..end {
-            if !flags::is_liquid(self.state.flags[c]) {
-                continue;
+            if flags::is_liquid(self.state.flags[c]) {
+                let (rho, u) = self.moments_with(c, forced.force_at(c));
+                visit(c, rho, u);
             }
-            while k < applied.len() && applied[k].cell < c {
-                k += 1;
-            }
-            let ib = if k < applied.len() && applied[k].cell == c { applied[k].force } else { [0.0; 3] };
-            let (rho, u) = self.moments_with(c, ib);
-            visit(c, rho, u);
         }
     }
 
@@ -589,23 +583,18 @@ impl<T: Real> Fluid<T> {
         let [nx, ny, nz] = self.state.dims;
         let n = self.ncells();
         let cs = crate::lattice::CS2.sqrt();
-        let applied = &self.scratch.forcing.applied;
         let found = (0..nz).into_par_iter().find_map_first(|z| {
             // The forced cells walked along, as in `plane_liquid_moments`.
-            let mut k = applied.partition_point(|a| a.cell < z * nx * ny);
+            let mut forced = self.scratch.forcing.cursor_from(z * nx * ny);
             for c in z * nx * ny..(z + 1) * nx * ny {
                 let flag = self.state.flags[c];
                 if !flags::is_liquid(flag) {
                     continue;
                 }
-                while k < applied.len() && applied[k].cell < c {
-                    k += 1;
-                }
                 let bad = if let Some(i) = (0..Q).find(|&i| !self.state.populations[i * n + c].is_finite()) {
                     Some((Quantity::Population(i), self.state.populations[i * n + c].to_f64()))
                 } else {
-                    let ib = if k < applied.len() && applied[k].cell == c { applied[k].force } else { [0.0; 3] };
-                    let (rho, u) = self.moments_with(c, ib);
+                    let (rho, u) = self.moments_with(c, forced.force_at(c));
                     let mach = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt() / cs;
                     // Written so that NaN moments count as out of bounds.
                     if !(limits.min_density..=limits.max_density).contains(&rho) || rho.is_nan() {
@@ -663,15 +652,16 @@ impl<T: Real> Fluid<T> {
     fn classify_row(&mut self, r: usize) {
         let nx = self.state.dims[0];
         let row = &self.state.flags[r * nx..(r + 1) * nx];
-        let any = row.iter().any(|&f| flags::is_liquid(f));
+        let span = match (row.iter().position(|&f| flags::is_liquid(f)), row.iter().rposition(|&f| flags::is_liquid(f)))
+        {
+            (Some(first), Some(last)) => Some((first as u32, last as u32 + 1)),
+            _ => None,
+        };
+        let any = span.is_some();
         let all = row.iter().all(|&f| f == flags::FLUID);
         let interface = row.contains(&flags::INTERFACE);
         let wall = row.contains(&flags::WALL);
-        self.scratch.spans[r] =
-            match (row.iter().position(|&f| flags::is_liquid(f)), row.iter().rposition(|&f| flags::is_liquid(f))) {
-                (Some(first), Some(last)) => (first as u32, last as u32 + 1),
-                _ => (0, 0),
-            };
+        self.scratch.spans[r] = span.unwrap_or((0, 0));
         self.scratch.rows[r] = if any { ROW_ANY_LIQUID } else { 0 }
             | if all { ROW_ALL_FLUID } else { 0 }
             | if interface { ROW_ANY_INTERFACE } else { 0 }

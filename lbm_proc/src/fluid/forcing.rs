@@ -74,11 +74,38 @@ impl Forcing {
         );
     }
 
+    /// A walk over the last step's applied forces from the first cell ≥ `start`,
+    /// for callers that visit cells in ascending order.
+    pub(super) fn cursor_from(&self, start: usize) -> AppliedCursor<'_> {
+        AppliedCursor { applied: &self.applied, k: self.applied.partition_point(|a| a.cell < start) }
+    }
+
     /// The force applied to cell index `c` in the last step (0 if unforced).
     pub(super) fn last_force(&self, c: usize) -> [f64; 3] {
         match self.applied.binary_search_by_key(&c, |a| a.cell) {
             Ok(k) => self.applied[k].force,
             Err(_) => [0.0; 3],
+        }
+    }
+}
+
+/// [`Forcing::last_force`] for cells visited in ascending order: one merge
+/// step per call instead of a binary search.
+pub(super) struct AppliedCursor<'a> {
+    applied: &'a [AppliedForce],
+    k: usize,
+}
+
+impl AppliedCursor<'_> {
+    /// The force applied to cell `c` in the last step (0 if unforced).
+    /// Pre: `c` is not below the cell of any earlier call.
+    pub(super) fn force_at(&mut self, c: usize) -> [f64; 3] {
+        while self.k < self.applied.len() && self.applied[self.k].cell < c {
+            self.k += 1;
+        }
+        match self.applied.get(self.k) {
+            Some(a) if a.cell == c => a.force,
+            _ => [0.0; 3],
         }
     }
 }
