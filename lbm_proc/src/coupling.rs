@@ -191,10 +191,12 @@ pub struct Coupling {
     row_base: Vec<u32>,
     parts: Vec<RowScratch>,
     slots: Vec<Slot>,
+    /// The forced cells being built; swapped into the fluid by `apply`.
     forced: Vec<ForcedCell>,
     results: Vec<SphereForce>,
-    /// The fluid's step count when [`Coupling::apply`] last ran.
-    applied_at: Option<u64>,
+    /// The fluid's step count and forcing version when [`Coupling::apply`]
+    /// last installed its list (the fluid holds the list from then on).
+    applied_at: Option<(u64, u64)>,
     /// How partly covered cells are forced (installed in the fluid by `apply`).
     gain: ForcingGain,
 }
@@ -352,8 +354,8 @@ impl Coupling {
         self.results.clear();
         self.results.resize(spheres.len(), SphereForce::default());
         fluid.set_forcing_gain(self.gain);
-        fluid.set_direct_forcing_built(&self.forced);
-        self.applied_at = Some(fluid.steps());
+        let version = fluid.swap_direct_forcing(&mut self.forced);
+        self.applied_at = Some((fluid.steps(), version));
         Ok(())
     }
 
@@ -580,10 +582,7 @@ impl Coupling {
     /// the result does not depend on the thread count.
     pub fn collect<T: Real>(&mut self, fluid: &Fluid<T>) -> Result<&[SphereForce], CouplingError> {
         let applied = fluid.applied_forcing();
-        if self.applied_at.map(|s| s + 1) != Some(fluid.steps())
-            || applied.len() != self.forced.len()
-            || applied.iter().zip(&self.forced).any(|(a, f)| a.cell != f.cell)
-        {
+        if self.applied_at != Some((fluid.steps().wrapping_sub(1), fluid.forcing_version())) {
             return Err(CouplingError::Stale);
         }
         let g = fluid.params().acceleration;
@@ -637,10 +636,5 @@ impl Coupling {
         self.apply(fluid, spheres)?;
         fluid.step();
         self.collect(fluid)
-    }
-
-    /// The cells forced in the next step (ascending index), lattice units.
-    pub fn forced_cells(&self) -> &[ForcedCell] {
-        &self.forced
     }
 }

@@ -275,7 +275,7 @@ fn momentum_given_to_the_fluid_is_minus_what_the_spheres_receive() {
     let spheres = three_spheres(3.0);
     coupling.apply(&mut fluid, &spheres).expect("valid spheres");
     fluid.step();
-    let cell = coupling.forced_cells().iter().find(|c| c.weight == 1.0).copied().expect("an interior cell");
+    let cell = fluid.direct_forcing().iter().find(|c| c.weight == 1.0).copied().expect("an interior cell");
     let (nx, ny) = (20, 18);
     let (_, u) = fluid.moments([cell.cell % nx, (cell.cell / nx) % ny, cell.cell / (nx * ny)]).expect("in box");
     let off = (0..3).map(|a| (u[a] - cell.target[a]).abs()).fold(0.0, f64::max);
@@ -311,7 +311,7 @@ fn each_exchange_the_liquid_outside_the_grains_loses_what_they_gain() {
         let covered_liquid: f64 = forces.iter().map(|f| f.liquid_mass).sum();
         for a in 0..3 {
             let mut outside: f64 = (0..before.len()).map(|c| after[c][a] - before[c][a]).sum();
-            for cell in coupling.forced_cells() {
+            for cell in fluid.direct_forcing() {
                 outside -= cell.weight * (after[cell.cell][a] - before[cell.cell][a]);
             }
             let to_grains: f64 = forces.iter().map(|f| f.surface_force[a]).sum();
@@ -460,6 +460,13 @@ fn bad_spheres_are_typed_errors() {
     assert_eq!(coupling.collect(&fluid).err(), Some(CouplingError::Stale), "nothing applied yet");
     coupling.apply(&mut fluid, &[good]).expect("valid sphere");
     assert_eq!(coupling.collect(&fluid).err(), Some(CouplingError::Stale), "no step since apply");
+    coupling.apply(&mut fluid, &[good]).expect("valid sphere");
+    fluid.clear_direct_forcing();
+    fluid.step();
+    assert_eq!(coupling.collect(&fluid).err(), Some(CouplingError::Stale), "the fluid's forcing replaced since apply");
+    coupling.apply(&mut fluid, &[good]).expect("valid sphere");
+    fluid.step();
+    assert!(coupling.collect(&fluid).is_ok(), "apply, one step, collect");
     let cases = [
         Sphere { radius: 0.0, ..good },
         Sphere { radius: f64::NAN, ..good },
@@ -794,7 +801,7 @@ fn row_covering_matches_covering_cell_by_cell() {
             let mut fluid = Fluid::<f32>::new(dims, faces, FluidParams::new(0.6)).expect("valid");
             let mut coupling = Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin");
             coupling.apply(&mut fluid, &spheres).expect("valid spheres");
-            coupling.forced_cells().to_vec()
+            fluid.direct_forcing().to_vec()
         });
         assert_eq!(forced.len(), cells.len(), "{threads} threads: number of forced cells");
         for (f, (&cell, &(total, target))) in forced.iter().zip(&cells) {

@@ -57,6 +57,9 @@ pub(super) struct Forcing {
     pub(super) applied: Vec<AppliedForce>,
     /// How a partly covered cell's gain follows from its covered fraction.
     pub(super) gain: ForcingGain,
+    /// Counts the lists installed, so that the coupling can tell its own
+    /// list from one set since ([`Fluid::forcing_version`]).
+    pub(super) version: u64,
 }
 
 impl Forcing {
@@ -110,7 +113,7 @@ impl AppliedCursor<'_> {
     }
 }
 
-/// Entries per parallel task when copying or resetting the forcing lists.
+/// Entries per parallel task when resetting the applied-force list.
 const PARALLEL_COPY_CHUNK: usize = 16 * 1024;
 
 impl<T: Real> Fluid<T> {
@@ -129,6 +132,7 @@ impl<T: Real> Fluid<T> {
     pub fn set_direct_forcing(&mut self, cells: impl IntoIterator<Item = ForcedCell>) -> Result<(), ConfigError> {
         let ncells = self.ncells();
         let forcing = &mut self.scratch.forcing;
+        forcing.version += 1;
         forcing.cells.clear();
         forcing.rows.clear();
         let check = || {
@@ -160,10 +164,10 @@ impl<T: Real> Fluid<T> {
     }
 
     /// [`Fluid::set_direct_forcing`] for a list the coupling built sorted,
-    /// inside the box, with weights in [0, 1] and finite targets: copied in
-    /// one move (the per-cell checks cost 2.6 % of a coupled step), checked
-    /// in debug builds only.
-    pub(crate) fn set_direct_forcing_built(&mut self, cells: &[ForcedCell]) {
+    /// inside the box, with weights in [0, 1] and finite targets: swapped in
+    /// (`cells` gets the previous list back, for its buffer), checked in
+    /// debug builds only. Returns the new [`Fluid::forcing_version`].
+    pub(crate) fn swap_direct_forcing(&mut self, cells: &mut Vec<ForcedCell>) -> u64 {
         debug_assert!(
             cells.windows(2).all(|w| w[0].cell < w[1].cell)
                 && cells.iter().all(|c| c.cell < self.ncells()
@@ -172,13 +176,10 @@ impl<T: Real> Fluid<T> {
             "the coupling built an invalid forcing list"
         );
         let forcing = &mut self.scratch.forcing;
-        forcing.cells.resize(cells.len(), ForcedCell { cell: 0, weight: 0.0, target: [0.0; 3] });
-        forcing
-            .cells
-            .par_chunks_mut(PARALLEL_COPY_CHUNK)
-            .zip(cells.par_chunks(PARALLEL_COPY_CHUNK))
-            .for_each(|(dst, src)| dst.copy_from_slice(src));
+        std::mem::swap(&mut forcing.cells, cells);
+        forcing.version += 1;
         self.index_forcing_rows();
+        self.scratch.forcing.version
     }
 
     /// `rows[r]`: the first forcing entry of x-row r (a counting pass).
@@ -211,8 +212,15 @@ impl<T: Real> Fluid<T> {
 
     /// Removes the direct forcing.
     pub fn clear_direct_forcing(&mut self) {
+        self.scratch.forcing.version += 1;
         self.scratch.forcing.cells.clear();
         self.scratch.forcing.rows.clear();
+    }
+
+    /// How many forcing lists have been installed (set, swapped in or
+    /// cleared): a list is still the one installed while this is unchanged.
+    pub fn forcing_version(&self) -> u64 {
+        self.scratch.forcing.version
     }
 
     /// The cells forced from the next step on.
