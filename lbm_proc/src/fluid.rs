@@ -941,9 +941,16 @@ impl<T: Real> Kernel<'_, T> {
             while k < k_end && self.forced[k].cell < own {
                 k += 1;
             }
-            // Chunks of gas and wall in a mixed row (the liquid front in a
-            // long flume) cost one scan of their flags.
-            if !all_fluid && !self.flags[own..own + n].iter().any(|&fl| flags::is_liquid(fl)) {
+            // One pass over a mixed row's chunk flags (liquid flags have bit
+            // 0 clear): a chunk of gas and wall only (the liquid front in a
+            // long flume) is skipped, an all-liquid one is copied out whole.
+            let (some_liquid, own_liquid) = if all_fluid {
+                (true, true)
+            } else {
+                let (and, or) = self.flags[own..own + n].iter().fold((1, 0), |(and, or), &fl| (and & fl, or | fl));
+                (and & 1 == 0, or & 1 == 0)
+            };
+            if !some_liquid {
                 x0 += n;
                 continue;
             }
@@ -963,8 +970,6 @@ impl<T: Real> Kernel<'_, T> {
                     }
                 }
             }
-            // Liquid flags have bit 0 clear: one OR over the chunk, no branch per cell.
-            let own_liquid = all_fluid || self.flags[own..own + n].iter().fold(0, |acc, &fl| acc | fl) & 1 == 0;
             // Whole vectors of lanes; the lanes past n, and gas or wall
             // lanes, hold finite leftovers and are not written.
             let lanes = n.next_multiple_of(8).min(LANES);
