@@ -121,6 +121,11 @@ pub struct DemDetails {
     /// Fraction of the run's wall time spent handing frames to the recorder.
     pub recording_fraction: f64,
     pub threads: usize,
+    /// Wall seconds in each stage of the step over the collapse
+    /// (kick_and_drift, update_neighbours, compute_contact_forces,
+    /// sum_and_kick); empty in summaries written before it existed.
+    #[serde(default)]
+    pub stage_seconds: std::collections::BTreeMap<String, f64>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -152,6 +157,11 @@ pub struct LbmDetails {
     /// Fraction of the run's wall time spent handing frames to the recorder.
     pub recording_fraction: f64,
     pub threads: usize,
+    /// Wall seconds in each stage of the fluid step (prepare,
+    /// stream_collide, update_surface; the coupling kernel is
+    /// `exchange.kernel_seconds`); empty in summaries written before it existed.
+    #[serde(default)]
+    pub stage_seconds: std::collections::BTreeMap<String, f64>,
 }
 
 /// The MPM run (plane strain: masses and energies per metre of width).

@@ -55,6 +55,9 @@ pub(super) struct Forcing {
     pub(super) rows: Vec<usize>,
     /// Parallel to `cells` during and after a step: what was applied.
     pub(super) applied: Vec<AppliedForce>,
+    /// `rows` of the list `applied` was reset from (a list installed since
+    /// has its own `rows`).
+    pub(super) applied_rows: Vec<usize>,
     /// How a partly covered cell's gain follows from its covered fraction.
     pub(super) gain: ForcingGain,
     /// Counts the lists installed, so that the coupling can tell its own
@@ -68,6 +71,7 @@ impl Forcing {
     pub(super) fn start_step(&mut self) {
         // ~450k entries (29 MB) a step in the paper's column: in parallel.
         self.applied.resize(self.cells.len(), AppliedForce::default());
+        self.applied_rows.clone_from(&self.rows);
         self.applied.par_chunks_mut(PARALLEL_COPY_CHUNK).zip(self.cells.par_chunks(PARALLEL_COPY_CHUNK)).for_each(
             |(applied, cells)| {
                 for (a, c) in applied.iter_mut().zip(cells) {
@@ -83,10 +87,15 @@ impl Forcing {
         AppliedCursor { applied: &self.applied, k: self.applied.partition_point(|a| a.cell < start) }
     }
 
-    /// The force applied to cell index `c` in the last step (0 if unforced).
-    pub(super) fn last_force(&self, c: usize) -> [f64; 3] {
-        match self.applied.binary_search_by_key(&c, |a| a.cell) {
-            Ok(k) => self.applied[k].force,
+    /// The force applied to cell index `c` of a lattice `nx` cells long in
+    /// the last step (0 if unforced): a search in the cell's row.
+    pub(super) fn last_force(&self, c: usize, nx: usize) -> [f64; 3] {
+        let r = c / nx;
+        let Some(row) = self.applied_rows.get(r..r + 2).and_then(|b| self.applied.get(b[0]..b[1])) else {
+            return [0.0; 3];
+        };
+        match row.binary_search_by_key(&c, |a| a.cell) {
+            Ok(k) => row[k].force,
             Err(_) => [0.0; 3],
         }
     }

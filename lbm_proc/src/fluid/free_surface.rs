@@ -42,9 +42,13 @@
 //!    given back to the bulk once half a cell's mass has gathered;
 //! 9. update the interface list, ε and the row classes of touched rows.
 //!
-//! Everything here is sequential over the interface cells in ascending
-//! index order, so results do not depend on the thread count, and the work
-//! lists are reused, so a step allocates nothing once they have grown.
+//! The marks of step 4 are computed in parallel (each reads only the flags
+//! and its own cell); everything else is sequential over the interface
+//! cells in ascending index order. Results do not depend on the thread
+//! count, and the work lists are reused, so a step allocates nothing once
+//! they have grown.
+
+use rayon::prelude::*;
 
 use super::{flags, wrap, ConfigError, Fluid};
 use crate::lattice::{E, Q, W};
@@ -72,6 +76,17 @@ const DEFICIT_CAP: f64 = 0.05;
 /// liquid: spread over every fluid cell as a uniform density rise.
 const PENDING_RETURN: f64 = 0.5;
 
+/// Interface cells per parallel task of the conversion marks.
+const MARK_CHUNK: usize = 2048;
+
+/// What step 4 decides for an interface cell.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Mark {
+    Stays,
+    Fills,
+    Empties,
+}
+
 /// Work lists of the conversions, reused every step.
 #[derive(Debug, Clone, Default)]
 pub(super) struct Lists {
@@ -86,8 +101,16 @@ pub(super) struct Lists {
     shares: Vec<(usize, f64)>,
     /// Index in `excess` of the source of each share.
     share_source: Vec<usize>,
+    /// Density and conversion of each cell of the interface list (step 3–4).
+    marks: Vec<(f64, Mark)>,
+    /// Density of each cell of `next_interface`.
+    next_density: Vec<f64>,
+    /// Populations of each cell of `from_gas` (step 5).
+    new_populations: Vec<[f64; Q]>,
     /// Shares into interface cells, sorted by receiver (capacity pass).
     by_receiver: Vec<usize>,
+    /// The sort keys of `by_receiver`.
+    receiver_keys: Vec<u128>,
     /// Per source, the mass its interface receivers had no room for.
     overflow: Vec<f64>,
     rows: Vec<usize>,
@@ -133,6 +156,70 @@ impl<T: Real> Fluid<T> {
         let ys = wrap(y, e[1], ny, f[1])?;
         let zs = wrap(z, e[2], nz, f[2])?;
         Some((zs * ny + ys) * nx + xs)
+    }
+
+    /// The indices of the 18 neighbours of cell `c` (entry i along e_i for
+    /// i ≥ 1, entry 0 is `c`), `None` beyond a wall face: [`Fluid::neighbour`]
+    /// for all directions at once, by fixed offsets off the box's faces.
+    fn neighbours(&self, c: usize) -> [Option<usize>; Q] {
+        let [nx, ny, nz] = self.state.dims;
+        let [x, y, z] = self.coords(c);
+        if x > 0 && x + 1 < nx && y > 0 && y + 1 < ny && z > 0 && z + 1 < nz {
+            let (sy, sz) = (nx as isize, (nx * ny) as isize);
+            std::array::from_fn(|i| {
+                let e = E[i];
+                Some((c as isize + e[0] as isize + e[1] as isize * sy + e[2] as isize * sz) as usize)
+            })
+        } else {
+            std::array::from_fn(|i| self.neighbour(c, i))
+        }
+    }
+
+    /// Step 4's conversion of interface cell `c`, with its density ρ:
+    /// fills when m > (1 + κ)ρ or it has no gas neighbour; empties when
+    /// m < −κρ or, with no fluid neighbour, when ε < `FORCED_EMPTY`, it has
+    /// no interface neighbour or it touches no wall (module comment).
+    fn conversion_mark(&self, c: usize, kappa: f64) -> (f64, Mark) {
+        let rho = self.density_at(c);
+        let m = self.state.mass[c];
+        let eps = m / rho;
+        let (mut has_f, mut has_g, mut has_i, mut has_w) = (false, false, false, false);
+        for nb in &self.neighbours(c)[1..] {
+            match nb.map(|nb| self.state.flags[nb]) {
+                Some(flags::FLUID) => has_f = true,
+                Some(flags::GAS) => has_g = true,
+                Some(flags::WALL) | None => has_w = true,
+                Some(_) => has_i = true,
+            }
+        }
+        let mark = if m > (1.0 + kappa) * rho || !has_g {
+            Mark::Fills
+        } else if m < -kappa * rho || (!has_f && (eps < FORCED_EMPTY || !has_i || !has_w)) {
+            Mark::Empties
+        } else {
+            Mark::Stays
+        };
+        (rho, mark)
+    }
+
+    /// The populations of a cell that was gas and becomes interface (step
+    /// 5): f^eq(ρ̄, ū) − w (stored as deviations), ρ̄ and ū averaged over its
+    /// F and I neighbours, the velocity shifted by half the acceleration.
+    fn equilibrium_from_neighbours(&self, c: usize) -> [f64; Q] {
+        let (mut rho, mut u, mut count) = (0.0, [0.0; 3], 0.0);
+        for nb in self.neighbours(c)[1..].iter().flatten() {
+            if matches!(self.state.flags[*nb], flags::FLUID | flags::INTERFACE | TO_FLUID) {
+                let (r, v) = self.moments_at(*nb);
+                rho += r;
+                (0..3).for_each(|a| u[a] += v[a]);
+                count += 1.0;
+            }
+        }
+        // count ≥ 1: the filled cell that made c an interface cell is a neighbour.
+        let (rho, u) = (rho / count, u.map(|v| v / count));
+        let accel = self.params.acceleration;
+        let feq = crate::lattice::equilibrium(rho, std::array::from_fn(|a| u[a] + 0.5 * accel[a]));
+        std::array::from_fn(|i| feq[i] - W[i])
     }
 
     /// Rebuilds the interface list, the fluid count and the fill of every
@@ -265,29 +352,31 @@ impl<T: Real> Fluid<T> {
         let mut l = std::mem::take(&mut self.scratch.lists);
         let kappa = self.params.kappa;
 
-        // 3–4. Mark conversions. Marked cells still count as interface for
-        // their neighbours' tests, so the marks do not depend on the order.
+        // 3–4. Mark conversions, in parallel: a cell's mark reads only the
+        // flags (all marks are written after) and its own populations, so it
+        // does not depend on the order. The densities are kept for step 9.
         l.filled.clear();
         l.emptied.clear();
-        for &c in &self.scratch.interface {
-            let rho = self.density_at(c);
-            let m = self.state.mass[c];
-            let eps = m / rho;
-            let (mut has_f, mut has_g, mut has_i, mut has_w) = (false, false, false, false);
-            for i in 1..Q {
-                match self.neighbour(c, i).map(|nb| self.state.flags[nb]) {
-                    Some(flags::FLUID) => has_f = true,
-                    Some(flags::GAS) => has_g = true,
-                    Some(flags::WALL) | None => has_w = true,
-                    Some(_) => has_i = true,
+        l.marks.resize(self.scratch.interface.len(), (0.0, Mark::Stays));
+        let fluid = &*self;
+        fluid.scratch.interface.par_chunks(MARK_CHUNK).zip(l.marks.par_chunks_mut(MARK_CHUNK)).for_each(
+            |(cells, marks)| {
+                for (&c, mark) in cells.iter().zip(marks) {
+                    *mark = fluid.conversion_mark(c, kappa);
                 }
-            }
-            if m > (1.0 + kappa) * rho || !has_g {
-                self.state.flags[c] = TO_FLUID;
-                l.filled.push(c);
-            } else if m < -kappa * rho || (!has_f && (eps < FORCED_EMPTY || !has_i || !has_w)) {
-                self.state.flags[c] = TO_GAS;
-                l.emptied.push(c);
+            },
+        );
+        for (&c, &(_, mark)) in self.scratch.interface.iter().zip(&l.marks) {
+            match mark {
+                Mark::Fills => {
+                    self.state.flags[c] = TO_FLUID;
+                    l.filled.push(c);
+                }
+                Mark::Empties => {
+                    self.state.flags[c] = TO_GAS;
+                    l.emptied.push(c);
+                }
+                Mark::Stays => {}
             }
         }
 
@@ -308,24 +397,12 @@ impl<T: Real> Fluid<T> {
                 }
             }
         }
-        let accel = self.params.acceleration;
-        for &c in &l.from_gas {
-            // New cells read only old F and I cells, so the order is free.
-            let (mut rho, mut u, mut count) = (0.0, [0.0; 3], 0.0);
-            for i in 1..Q {
-                if let Some(nb) = self.neighbour(c, i) {
-                    if matches!(self.state.flags[nb], flags::FLUID | flags::INTERFACE | TO_FLUID) {
-                        let (r, v) = self.moments_at(nb);
-                        rho += r;
-                        (0..3).for_each(|a| u[a] += v[a]);
-                        count += 1.0;
-                    }
-                }
-            }
-            // count ≥ 1: the filled cell that made c an interface cell is a neighbour.
-            let (rho, u) = (rho / count, u.map(|v| v / count));
-            let feq = crate::lattice::equilibrium(rho, std::array::from_fn(|a| u[a] + 0.5 * accel[a]));
-            self.write_cell(c, &std::array::from_fn(|i| feq[i] - W[i]));
+        // New cells read only old F and I cells (the new ones are marked
+        // NEW_INTERFACE), so they are computed in parallel, then written.
+        let fluid = &*self;
+        l.from_gas.par_iter().map(|&c| fluid.equilibrium_from_neighbours(c)).collect_into_vec(&mut l.new_populations);
+        for (&c, g) in l.from_gas.iter().zip(&l.new_populations) {
+            self.write_cell(c, g);
             self.state.mass[c] = 0.0;
         }
 
@@ -376,16 +453,28 @@ impl<T: Real> Fluid<T> {
             l.rows.push(c / nx);
         }
         // The new interface list: survivors (ascending) merged with the new
-        // cells (sorted here), then ε of every interface cell.
+        // cells (sorted here), then ε of every interface cell. A survivor's
+        // populations are those it was marked with, so its density is the
+        // one step 3 found.
         l.from_gas.extend_from_slice(&l.from_fluid);
         l.from_gas.sort_unstable();
         l.next_interface.clear();
-        let survivors = self.scratch.interface.iter().copied().filter(|&c| self.state.flags[c] == flags::INTERFACE);
-        merge_sorted(survivors, l.from_gas.iter().copied(), &mut l.next_interface);
+        l.next_density.clear();
+        {
+            let fluid = &*self;
+            let survivors = fluid
+                .scratch
+                .interface
+                .iter()
+                .zip(&l.marks)
+                .filter(|&(&c, _)| fluid.state.flags[c] == flags::INTERFACE)
+                .map(|(&c, &(rho, _))| (c, rho));
+            let new = l.from_gas.iter().map(|&c| (c, fluid.density_at(c)));
+            merge_sorted(survivors, new, &mut l.next_interface, &mut l.next_density);
+        }
         std::mem::swap(&mut self.scratch.interface, &mut l.next_interface);
-        for k in 0..self.scratch.interface.len() {
-            let c = self.scratch.interface[k];
-            self.scratch.fill[c] = self.state.mass[c] / self.density_at(c);
+        for (&c, &rho) in self.scratch.interface.iter().zip(&l.next_density) {
+            self.scratch.fill[c] = self.state.mass[c] / rho;
         }
 
         // 8. Distribute the excess: all shares first (from the ε above),
@@ -395,15 +484,14 @@ impl<T: Real> Fluid<T> {
         let fluid = &*self;
         l.share_source.clear();
         for (k, &(c, excess, sign)) in l.excess.iter().enumerate() {
-            let normal = fluid.normal(c);
+            let nbs = &fluid.neighbours(c);
+            let normal = fluid.normal(c, nbs);
             let weight = |i: usize| {
                 let ne: f64 = (0..3).map(|a| normal[a] * E[i][a] as f64).sum();
                 (sign * ne).max(0.0)
             };
             let receivers = |flag: u8| {
-                (1..Q).filter_map(move |i| {
-                    fluid.neighbour(c, i).filter(|&nb| fluid.state.flags[nb] == flag).map(|nb| (i, nb))
-                })
+                (1..Q).filter_map(move |i| nbs[i].filter(|&nb| fluid.state.flags[nb] == flag).map(|nb| (i, nb)))
             };
             let start = l.shares.len();
             let total: f64 = receivers(flags::INTERFACE).map(|(i, _)| weight(i)).sum();
@@ -445,12 +533,15 @@ impl<T: Real> Fluid<T> {
         // Without this, forced emptying of a free-standing sheet in a splash
         // piled 0.2–0.7 of a cell from each of six cells onto the few that
         // survived (fill up to 3.9; docs/lbm.md "Splashes").
-        l.by_receiver.clear();
-        l.by_receiver.extend((0..l.shares.len()).filter(|&s| {
-            let (nb, m) = l.shares[s];
-            m < 0.0 || (m > 0.0 && fluid.state.flags[nb] == flags::INTERFACE)
+        // Sorted by (receiver, taking, share index), packed in one key.
+        l.receiver_keys.clear();
+        l.receiver_keys.extend(l.shares.iter().enumerate().filter_map(|(s, &(nb, m))| {
+            (m < 0.0 || (m > 0.0 && fluid.state.flags[nb] == flags::INTERFACE))
+                .then_some(((nb as u128) << 64) | (u128::from(m < 0.0) << 63) | s as u128)
         }));
-        l.by_receiver.sort_unstable_by_key(|&s| (l.shares[s].0, l.shares[s].1 < 0.0, s));
+        l.receiver_keys.sort_unstable();
+        l.by_receiver.clear();
+        l.by_receiver.extend(l.receiver_keys.iter().map(|&key| (key as u64 & !(1 << 63)) as usize));
         l.overflow.clear();
         l.overflow.resize(l.excess.len(), 0.0);
         let mut g = 0;
@@ -518,13 +609,19 @@ impl<T: Real> Fluid<T> {
                 self.add_density(nb, share);
             }
         }
-        for &(nb, _) in &l.shares {
-            if self.state.flags[nb] == flags::INTERFACE {
+        // ε of the interface cells whose mass changed, once each: they are
+        // the receivers in `by_receiver` (sorted by cell; the overflow went
+        // to fluid cells, and a zero share changes nothing).
+        let mut last = usize::MAX;
+        for &s in &l.by_receiver {
+            let nb = l.shares[s].0;
+            if nb != last && self.state.flags[nb] == flags::INTERFACE {
                 self.scratch.fill[nb] = self.state.mass[nb] / self.density_at(nb);
             }
+            last = nb;
         }
         if self.state.pending_excess.abs() >= PENDING_RETURN && self.scratch.fluid_count > 0 {
-            self.return_pending_excess();
+            self.return_pending_excess(&l.next_density);
         }
 
         // 9. Row classes of the rows whose flags changed.
@@ -544,23 +641,26 @@ impl<T: Real> Fluid<T> {
     /// density holes down to 0.47 at a front tip; spread as density over the
     /// whole liquid, it lowered the density everywhere. With too little
     /// capacity at the surface, every fluid cell's density changes alike.
-    fn return_pending_excess(&mut self) {
+    ///
+    /// `densities[k]`: the density of interface cell k (in list order).
+    fn return_pending_excess(&mut self, densities: &[f64]) {
         let pending = self.state.pending_excess;
-        let capacity = |f: &Self, c: usize| {
-            let m = f.state.mass[c];
+        let capacity = |f: &Self, k: usize| {
+            let m = f.state.mass[f.scratch.interface[k]];
             if pending < 0.0 {
                 m.max(0.0)
             } else {
-                (f.density_at(c) - m).max(0.0)
+                (densities[k] - m).max(0.0)
             }
         };
-        let total: f64 = self.scratch.interface.iter().map(|&c| capacity(self, c)).sum();
+        let n = self.scratch.interface.len();
+        let total: f64 = (0..n).map(|k| capacity(self, k)).sum();
         if total >= pending.abs() && total > 0.0 {
-            let last = self.scratch.interface.iter().rposition(|&c| capacity(self, c) > 0.0).expect("capacity > 0");
+            let last = (0..n).rposition(|k| capacity(self, k) > 0.0).expect("capacity > 0");
             let mut given = 0.0;
             for k in 0..=last {
                 let c = self.scratch.interface[k];
-                let w = capacity(self, c);
+                let w = capacity(self, k);
                 if w <= 0.0 {
                     continue;
                 }
@@ -568,7 +668,7 @@ impl<T: Real> Fluid<T> {
                 let share = if k == last { pending - given } else { pending * w / total };
                 given += share;
                 self.state.mass[c] += share;
-                self.scratch.fill[c] = self.state.mass[c] / self.density_at(c);
+                self.scratch.fill[c] = self.state.mass[c] / densities[k];
             }
         } else {
             let count = self.scratch.fluid_count;
@@ -609,13 +709,11 @@ impl<T: Real> Fluid<T> {
 
     /// n = −∇ε/|∇ε| at cell `c` by central differences of the fill (a wall or
     /// a face beyond the box counts as the cell's own ε); 0 where ∇ε = 0.
-    fn normal(&self, c: usize) -> [f64; 3] {
+    /// `nbs` are the cell's neighbours ([`Fluid::neighbours`]).
+    fn normal(&self, c: usize, nbs: &[Option<usize>; Q]) -> [f64; 3] {
         let own = self.scratch.fill[c];
-        let eps = |i: usize| {
-            self.neighbour(c, i)
-                .filter(|&nb| self.state.flags[nb] != flags::WALL)
-                .map_or(own, |nb| self.scratch.fill[nb])
-        };
+        let eps =
+            |i: usize| nbs[i].filter(|&nb| self.state.flags[nb] != flags::WALL).map_or(own, |nb| self.scratch.fill[nb]);
         // Directions 1..6 are +x, −x, +y, −y, +z, −z.
         let g = [-0.5 * (eps(1) - eps(2)), -0.5 * (eps(3) - eps(4)), -0.5 * (eps(5) - eps(6))];
         let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
@@ -693,16 +791,25 @@ impl<T: Real> Fluid<T> {
     }
 }
 
-/// Merges two ascending sequences into `out`.
-fn merge_sorted(a: impl Iterator<Item = usize>, b: impl Iterator<Item = usize>, out: &mut Vec<usize>) {
+/// Merges two sequences of (cell, value), each ascending by cell, into
+/// `cells` and `values`.
+fn merge_sorted(
+    a: impl Iterator<Item = (usize, f64)>,
+    b: impl Iterator<Item = (usize, f64)>,
+    cells: &mut Vec<usize>,
+    values: &mut Vec<f64>,
+) {
     let (mut a, mut b) = (a.peekable(), b.peekable());
     loop {
         let next = match (a.peek(), b.peek()) {
-            (Some(&x), Some(&y)) if x <= y => a.next(),
+            (Some(&x), Some(&y)) if x.0 <= y.0 => a.next(),
             (Some(_), Some(_)) | (None, Some(_)) => b.next(),
             (Some(_), None) => a.next(),
             (None, None) => return,
         };
-        out.extend(next);
+        if let Some((c, v)) = next {
+            cells.push(c);
+            values.push(v);
+        }
     }
 }
