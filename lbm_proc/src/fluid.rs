@@ -273,7 +273,8 @@ pub struct FluidStageSeconds {
     /// Row classification after flag changes and the forcing reset.
     pub prepare: f64,
     pub stream_collide: f64,
-    /// Mass exchange, fill conversions, interface rebuild.
+    /// Fill conversions, excess distribution, interface list (the mass
+    /// exchange Δm is part of `stream_collide`).
     pub update_surface: f64,
 }
 

@@ -159,7 +159,8 @@ pub struct LbmDetails {
     pub threads: usize,
     /// Wall seconds in each stage of the fluid step (prepare,
     /// stream_collide, update_surface; the coupling kernel is
-    /// `exchange.kernel_seconds`); empty in summaries written before it existed.
+    /// `exchange.kernel_seconds` here, `exchange.lbm.kernel_seconds` in the
+    /// coupler's merged summary); empty in summaries written before it existed.
     #[serde(default)]
     pub stage_seconds: std::collections::BTreeMap<String, f64>,
 }

@@ -42,11 +42,12 @@
 //!    given back to the bulk once half a cell's mass has gathered;
 //! 9. update the interface list, ε and the row classes of touched rows.
 //!
-//! The marks of step 4 are computed in parallel (each reads only the flags
-//! and its own cell); everything else is sequential over the interface
-//! cells in ascending index order. Results do not depend on the thread
-//! count, and the work lists are reused, so a step allocates nothing once
-//! they have grown.
+//! The marks of step 4 (each reads only the flags and its own cell) and the
+//! populations of step 5's new cells (each reads only old fluid and
+//! interface cells) are computed in parallel; everything else is
+//! sequential over the interface cells in ascending index order. Results
+//! do not depend on the thread count, and the work lists are reused, so a
+//! step allocates nothing once they have grown.
 
 use rayon::prelude::*;
 
@@ -611,7 +612,8 @@ impl<T: Real> Fluid<T> {
         }
         // ε of the interface cells whose mass changed, once each: they are
         // the receivers in `by_receiver` (sorted by cell; the overflow went
-        // to fluid cells, and a zero share changes nothing).
+        // to fluid cells, and a zero share changes nothing; a NaN share is
+        // left out, which the watchdog reports from m/ρ itself).
         let mut last = usize::MAX;
         for &s in &l.by_receiver {
             let nb = l.shares[s].0;
