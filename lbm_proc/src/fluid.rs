@@ -265,6 +265,9 @@ pub struct Fluid<T: Real = f32> {
     isa: Isa,
     /// Wall seconds spent in each stage of [`Fluid::step`] since creation.
     pub stage_seconds: FluidStageSeconds,
+    /// A step begun by [`Fluid::begin_step`] still needs its free-surface
+    /// conversions ([`Fluid::finish_step`]).
+    surface_pending: bool,
 }
 
 /// Wall time per stage of [`Fluid::step`], s.
@@ -353,8 +356,14 @@ impl<T: Real> Fluid<T> {
             lists: Default::default(),
             forcing: Default::default(),
         };
-        let mut fluid =
-            Fluid { state, params, scratch, isa: Isa::current(), stage_seconds: FluidStageSeconds::default() };
+        let mut fluid = Fluid {
+            state,
+            params,
+            scratch,
+            isa: Isa::current(),
+            stage_seconds: FluidStageSeconds::default(),
+            surface_pending: false,
+        };
         // The kernel relies on it: only interface cells pull from gas.
         let [nx, ny, _] = fluid.state.dims;
         let flags = &fluid.state.flags;
@@ -367,6 +376,7 @@ impl<T: Real> Fluid<T> {
     }
 
     pub fn state(&self) -> &FluidState<T> {
+        debug_assert!(!self.surface_pending, "a step begun by begin_step needs finish_step before its state is read");
         &self.state
     }
     /// Runs the kernel with `isa`, lowered to what the CPU supports.
@@ -634,8 +644,24 @@ impl<T: Real> Fluid<T> {
         found.map_or(Ok(()), Err)
     }
 
-    /// Advances one time step.
+    /// Advances one time step: [`Fluid::begin_step`], then
+    /// [`Fluid::finish_step`].
     pub fn step(&mut self) {
+        self.begin_step();
+        self.finish_step();
+    }
+
+    /// The first part of a step: stream and collide (direct forcing and the
+    /// interface cells' mass exchange included), the lattices swapped, the
+    /// step counted. What the forcing applied ([`Fluid::applied_forcing`])
+    /// is final here, so a coupled run can answer the DEM and let it step
+    /// while [`Fluid::finish_step`] does the free-surface conversions, which
+    /// do not change the loads. A step still pending is finished first.
+    ///
+    /// Post: until `finish_step`, only the forcing read-outs are meaningful;
+    /// the state's flags and masses are those before the conversions.
+    pub fn begin_step(&mut self) {
+        self.finish_step();
         let t0 = Instant::now();
         if self.scratch.rows_stale {
             self.classify_rows();
@@ -648,15 +674,25 @@ impl<T: Real> Fluid<T> {
         }
         std::mem::swap(&mut self.state.populations, &mut self.scratch.next);
         self.state.step += 1;
+        self.surface_pending = true;
         let t2 = Instant::now();
-        if !self.scratch.interface.is_empty() {
-            self.update_surface();
-        }
-        let t3 = Instant::now();
         let st = &mut self.stage_seconds;
         st.prepare += (t1 - t0).as_secs_f64();
         st.stream_collide += (t2 - t1).as_secs_f64();
-        st.update_surface += (t3 - t2).as_secs_f64();
+    }
+
+    /// The rest of the step begun by [`Fluid::begin_step`]: the free-surface
+    /// conversions (steps 3–9 of `free_surface`). Does nothing when no step
+    /// is pending.
+    pub fn finish_step(&mut self) {
+        if !std::mem::take(&mut self.surface_pending) {
+            return;
+        }
+        let t0 = Instant::now();
+        if !self.scratch.interface.is_empty() {
+            self.update_surface();
+        }
+        self.stage_seconds.update_surface += t0.elapsed().as_secs_f64();
     }
 
     /// Recomputes the row classes after flags changed.
@@ -1656,6 +1692,30 @@ mod isa_tests {
         });
         fluid.set_direct_forcing(forced).expect("valid forcing");
         fluid
+    }
+
+    /// A coupled run answers the DEM between the two halves of a step: the
+    /// forcing read-out must be final after `begin_step`, and the halves
+    /// together must be `step` bit for bit.
+    #[test]
+    fn a_step_in_two_halves_is_the_whole_step() {
+        let mut whole = collapsing_block(Collision::Bgk);
+        let mut halves = whole.clone();
+        for _ in 0..40 {
+            whole.step();
+            halves.begin_step();
+            assert_eq!(halves.applied_forcing(), whole.applied_forcing());
+            halves.finish_step();
+            halves.finish_step(); // nothing pending: no effect
+        }
+        assert!(whole.interface_cells() > 0 && whole.applied_forcing().iter().any(|a| a.force[0] != 0.0));
+        assert!(halves.state() == whole.state());
+        // A step begun twice finishes the first before the second.
+        halves.begin_step();
+        halves.begin_step();
+        halves.finish_step();
+        (0..2).for_each(|_| whole.step());
+        assert!(halves.state() == whole.state());
     }
 
     /// The velocity of a forced cell includes half the force the last step

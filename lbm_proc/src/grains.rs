@@ -24,11 +24,15 @@ impl GrainForcing {
     }
 
     /// One fluid step with `states` forced in; `loads` gets one entry per
-    /// state, same order and ids.
+    /// state, same order and ids. The step's free-surface conversions are
+    /// left to the caller's [`Fluid::finish_step`] (after answering the
+    /// DEM, so that they overlap its sub-steps; the next step finishes them
+    /// anyway).
     ///
-    /// Pre: `header.count == states.len()`. Post: `fluid` advanced one step;
-    /// the fluid's momentum change from the forcing equals minus the sum of
-    /// the returned forces without buoyancy (tests/coupling.rs).
+    /// Pre: `header.count == states.len()`. Post: `fluid` advanced one step
+    /// but for its conversions; the fluid's momentum change from the forcing
+    /// equals minus the sum of the returned forces without buoyancy
+    /// (tests/coupling.rs).
     pub fn step<T: Real>(
         &mut self,
         fluid: &mut Fluid<T>,
@@ -47,7 +51,7 @@ impl GrainForcing {
         }));
         self.coupling.apply(fluid, &self.spheres)?;
         let covered = started.elapsed().as_secs_f64();
-        fluid.step();
+        fluid.begin_step();
         let collected = std::time::Instant::now();
         let forces = self.coupling.collect(fluid)?;
         loads.clear();

@@ -266,12 +266,15 @@ pub fn run(
                 .map_err(|source| RunError::Coupling { exchange: steps, source })?;
             let sent = Instant::now();
             let answer = ExchangeHeader { exchange: steps, time: header.time, count: loads.len() as u32, flags: 0 };
-            if let Err(source) = p.send_loads(answer, &loads) {
+            let sent_result = p.send_loads(answer, &loads);
+            exchange_seconds += sent.elapsed().as_secs_f64();
+            // The conversions do not change the loads: done while the DEM steps.
+            fluid.finish_step();
+            if let Err(source) = sent_result {
                 status = "peer_failed";
                 failure = Some(RunError::Peer { exchange: steps, source });
                 break;
             }
-            exchange_seconds += sent.elapsed().as_secs_f64();
         } else {
             fluid.step();
         }

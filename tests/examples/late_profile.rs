@@ -92,6 +92,7 @@ fn main() {
         if let Some((fluid, forcing)) = lbm.as_mut() {
             let started = Instant::now();
             forcing.step(fluid, &header, &states, &mut loads).expect("coupled step");
+            fluid.finish_step();
             lbm_seconds += started.elapsed().as_secs_f64();
         }
         for l in &loads {
