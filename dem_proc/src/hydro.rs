@@ -128,20 +128,7 @@ impl HydroExchange {
     }
 
     fn capture_states(&mut self, world: &World) {
-        let g = &world.grains;
-        self.states.clear();
-        // In id order: the peer sees fixed ids whatever the storage order.
-        self.states.extend((0..g.len()).map(|id| {
-            let p = world.slot(id);
-            ParticleState {
-                id: id as u32,
-                _pad: 0,
-                position: g.pos[p],
-                velocity: g.vel[p],
-                angular_velocity: g.omega[p],
-                radius: g.radius[p],
-            }
-        }));
+        capture_states(world, &mut self.states);
     }
 
     /// Receives exchange `n`; true when the peer stops.
@@ -175,4 +162,22 @@ impl HydroExchange {
             world.set_external_load(p, force, torque);
         }
     }
+}
+
+/// Every grain's state as the exchange sends it, in id order (the peer sees
+/// fixed ids whatever the storage order), into `out` (cleared first).
+pub fn capture_states(world: &World, out: &mut Vec<ParticleState>) {
+    let g = &world.grains;
+    out.clear();
+    out.extend((0..g.len()).map(|id| {
+        let p = world.slot(id);
+        ParticleState {
+            id: id as u32,
+            _pad: 0,
+            position: g.pos[p],
+            velocity: g.vel[p],
+            angular_velocity: g.omega[p],
+            radius: g.radius[p],
+        }
+    }));
 }

@@ -18,7 +18,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use schemas::exchange::{ExchangeHeader, ParticleState};
+use schemas::exchange::ExchangeHeader;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -75,19 +75,7 @@ fn main() {
                 (lbm_before, coupling_before) = (fluid.stage_seconds, forcing.coupling_seconds);
             }
         }
-        states.clear();
-        states.extend((0..world.len()).map(|id| {
-            let p = world.slot(id);
-            let g = &world.grains;
-            ParticleState {
-                id: id as u32,
-                _pad: 0,
-                position: g.pos[p],
-                velocity: g.vel[p],
-                angular_velocity: g.omega[p],
-                radius: g.radius[p],
-            }
-        }));
+        dem_proc::hydro::capture_states(&world, &mut states);
         let header = ExchangeHeader { exchange: n, time: world.time, count: states.len() as u32, flags: 0 };
         if let Some((fluid, forcing)) = lbm.as_mut() {
             let started = Instant::now();
