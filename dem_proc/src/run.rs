@@ -439,18 +439,7 @@ pub fn run(
             coordination_final: world.mean_coordination(),
             recording_fraction: frames.seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),
-            stage_seconds: {
-                let st = world.stage_seconds;
-                [
-                    ("kick_and_drift", st.kick_and_drift),
-                    ("update_neighbours", st.update_neighbours),
-                    ("compute_contact_forces", st.compute_contact_forces),
-                    ("sum_and_kick", st.sum_and_kick),
-                ]
-                .into_iter()
-                .map(|(k, v)| (k.to_string(), v))
-                .collect()
-            },
+            stage_seconds: schemas::summary::stage_seconds_map(&world.stage_seconds),
         }),
         liquid_front: Vec::new(),
         lbm: None,

@@ -480,16 +480,7 @@ impl<T: Real> Fluid<T> {
 
     /// Whether a D3Q19 neighbour of cell index `c` is gas.
     fn borders_gas(&self, c: usize) -> bool {
-        let [nx, ny, nz] = self.state.dims;
-        let (x, y, z) = (c % nx, (c / nx) % ny, c / (nx * ny));
-        let faces = self.state.faces;
-        (1..Q).any(|i| {
-            let e = E[i];
-            match (wrap(x, e[0], nx, faces[0]), wrap(y, e[1], ny, faces[1]), wrap(z, e[2], nz, faces[2])) {
-                (Some(xs), Some(ys), Some(zs)) => self.state.flags[(zs * ny + ys) * nx + xs] == flags::GAS,
-                _ => false,
-            }
-        })
+        self.neighbours(c)[1..].iter().flatten().any(|&nb| self.state.flags[nb] == flags::GAS)
     }
 
     /// Density and velocity of cell index `c` (lattice units), from the
@@ -722,15 +713,13 @@ impl<T: Real> Fluid<T> {
         }
         let any = fluid || interface;
         let all = !(interface || wall || gas);
-        let span = match any {
-            true => {
-                let first = row.iter().position(|&f| flags::is_liquid(f)).unwrap_or(0);
-                let last = row.iter().rposition(|&f| flags::is_liquid(f)).unwrap_or(0);
-                Some((first as u32, last as u32 + 1))
-            }
-            false => None,
+        self.scratch.spans[r] = if any {
+            let first = row.iter().position(|&f| flags::is_liquid(f)).unwrap_or(0);
+            let last = row.iter().rposition(|&f| flags::is_liquid(f)).unwrap_or(0);
+            (first as u32, last as u32 + 1)
+        } else {
+            (0, 0)
         };
-        self.scratch.spans[r] = span.unwrap_or((0, 0));
         self.scratch.rows[r] = if any { ROW_ANY_LIQUID } else { 0 }
             | if all { ROW_ALL_FLUID } else { 0 }
             | if interface { ROW_ANY_INTERFACE } else { 0 }

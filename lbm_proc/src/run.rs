@@ -370,13 +370,7 @@ pub fn run(
             max_mach: frames.max_mach,
             recording_fraction: frames.seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),
-            stage_seconds: {
-                let st = fluid.stage_seconds;
-                [("prepare", st.prepare), ("stream_collide", st.stream_collide), ("update_surface", st.update_surface)]
-                    .into_iter()
-                    .map(|(k, v)| (k.to_string(), v))
-                    .collect()
-            },
+            stage_seconds: schemas::summary::stage_seconds_map(&fluid.stage_seconds),
         }),
         mpm: None,
         wall_seconds_total: None,

@@ -165,6 +165,14 @@ pub struct LbmDetails {
     pub stage_seconds: std::collections::BTreeMap<String, f64>,
 }
 
+/// A struct of wall-second stage timers (f64 fields) as the summaries'
+/// `stage_seconds` map, keyed by field name.
+pub fn stage_seconds_map(stages: &impl Serialize) -> std::collections::BTreeMap<String, f64> {
+    serde_json::to_value(stages)
+        .and_then(serde_json::from_value)
+        .expect("stage timers serialise as a map of f64 fields")
+}
+
 /// The MPM run (plane strain: masses and energies per metre of width).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MpmDetails {

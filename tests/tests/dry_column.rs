@@ -82,6 +82,12 @@ fn summary_holds_the_measures() {
     let grains = s["dem"]["particles"].as_f64().unwrap();
     let expected = s["steps"].as_f64().unwrap() * grains / s["wall_seconds"].as_f64().unwrap();
     assert!((pst - expected).abs() < 1e-6 * expected);
+    // The stage timers under the names docs/recording.md gives, within the run's wall time.
+    let stages = s["dem"]["stage_seconds"].as_object().unwrap();
+    let names: Vec<&str> = stages.keys().map(String::as_str).collect();
+    assert_eq!(names, ["compute_contact_forces", "kick_and_drift", "sum_and_kick", "update_neighbours"]);
+    let sum: f64 = stages.values().map(|v| v.as_f64().unwrap()).sum();
+    assert!(sum > 0.0 && sum <= s["wall_seconds"].as_f64().unwrap(), "stage seconds {sum}");
 }
 
 #[test]

@@ -53,6 +53,12 @@ fn water_block_summary() {
     assert!(xs.windows(2).all(|w| w[1] >= w[0] - 0.05), "front recedes: {xs:?}");
     let rate = s["throughput"]["cell_updates_per_s"].as_f64().unwrap();
     assert!(rate > 0.0);
+    // The stage timers under the names docs/recording.md gives, within the run's wall time.
+    let stages = lbm["stage_seconds"].as_object().unwrap();
+    let names: Vec<&str> = stages.keys().map(String::as_str).collect();
+    assert_eq!(names, ["prepare", "stream_collide", "update_surface"]);
+    let sum: f64 = stages.values().map(|v| v.as_f64().unwrap()).sum();
+    assert!(sum > 0.0 && sum <= s["wall_seconds"].as_f64().unwrap(), "stage seconds {sum}");
 }
 
 #[test]

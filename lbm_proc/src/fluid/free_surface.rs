@@ -162,7 +162,7 @@ impl<T: Real> Fluid<T> {
     /// The indices of the 18 neighbours of cell `c` (entry i along e_i for
     /// i ≥ 1, entry 0 is `c`), `None` beyond a wall face: [`Fluid::neighbour`]
     /// for all directions at once, by fixed offsets off the box's faces.
-    fn neighbours(&self, c: usize) -> [Option<usize>; Q] {
+    pub(super) fn neighbours(&self, c: usize) -> [Option<usize>; Q] {
         let [nx, ny, nz] = self.state.dims;
         let [x, y, z] = self.coords(c);
         if x > 0 && x + 1 < nx && y > 0 && y + 1 < ny && z > 0 && z + 1 < nz {
@@ -263,9 +263,7 @@ impl<T: Real> Fluid<T> {
             }
         }
         for c in 0..n {
-            if self.state.flags[c] == flags::FLUID
-                && (1..Q).any(|i| self.neighbour(c, i).is_some_and(|nb| self.state.flags[nb] == flags::GAS))
-            {
+            if self.state.flags[c] == flags::FLUID && self.borders_gas(c) {
                 self.state.flags[c] = flags::INTERFACE;
             }
         }
@@ -355,7 +353,8 @@ impl<T: Real> Fluid<T> {
 
         // 3–4. Mark conversions, in parallel: a cell's mark reads only the
         // flags (all marks are written after) and its own populations, so it
-        // does not depend on the order. The densities are kept for step 9.
+        // does not depend on the order. The densities are kept for the fills
+        // (step 7) and the pending return (step 8).
         l.filled.clear();
         l.emptied.clear();
         l.marks.resize(self.scratch.interface.len(), (0.0, Mark::Stays));
