@@ -8,7 +8,6 @@
 //! plane of their cell, so each is written by one task only and the result
 //! does not depend on the thread count.
 
-use rayon::prelude::*;
 use schemas::scene::ForcingGain;
 
 use super::{ConfigError, Fluid};
@@ -28,7 +27,11 @@ pub struct ForcedCell {
 }
 
 /// What the direct forcing did to one forced cell in the last step.
+///
+/// One cache line each (64 bytes, aligned): the coupling reads them by
+/// grain, scattered, and an entry split over two lines cost two misses.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[repr(C, align(64))]
 pub struct AppliedForce {
     /// Cell index.
     pub cell: usize,
@@ -66,19 +69,12 @@ pub(super) struct Forcing {
 }
 
 impl Forcing {
-    /// Resets the output list to the current cells with zero force (the
-    /// kernel writes liquid cells only; gas, wall and skipped rows stay 0).
+    /// Sizes the output list to the current cells. The kernel writes every
+    /// entry, gas, wall and skipped cells with zero force (the reset this
+    /// replaced wrote ~30 MB a step in the paper's column).
     pub(super) fn start_step(&mut self) {
-        // ~450k entries (29 MB) a step in the paper's column: in parallel.
         self.applied.resize(self.cells.len(), AppliedForce::default());
         self.applied_rows.clone_from(&self.rows);
-        self.applied.par_chunks_mut(PARALLEL_COPY_CHUNK).zip(self.cells.par_chunks(PARALLEL_COPY_CHUNK)).for_each(
-            |(applied, cells)| {
-                for (a, c) in applied.iter_mut().zip(cells) {
-                    *a = AppliedForce { cell: c.cell, ..Default::default() };
-                }
-            },
-        );
     }
 
     /// A walk over the last step's applied forces from the first cell ≥ `start`,
@@ -121,9 +117,6 @@ impl AppliedCursor<'_> {
         }
     }
 }
-
-/// Entries per parallel task when resetting the applied-force list.
-const PARALLEL_COPY_CHUNK: usize = 16 * 1024;
 
 impl<T: Real> Fluid<T> {
     /// Replaces the direct forcing applied from the next step on (until
@@ -173,10 +166,13 @@ impl<T: Real> Fluid<T> {
     }
 
     /// [`Fluid::set_direct_forcing`] for a list the coupling built sorted,
-    /// inside the box, with weights in [0, 1] and finite targets: swapped in
-    /// (`cells` gets the previous list back, for its buffer), checked in
-    /// debug builds only. Returns the new [`Fluid::forcing_version`].
-    pub(crate) fn swap_direct_forcing(&mut self, cells: &mut Vec<ForcedCell>) -> u64 {
+    /// inside the box, with weights in [0, 1] and finite targets, and its
+    /// row index (`rows[r]`: the first entry of x-row r, `ny·nz + 1` of
+    /// them): both swapped in (the arguments get the previous ones back, for
+    /// their buffers), checked in debug builds only. Returns the new
+    /// [`Fluid::forcing_version`].
+    pub(crate) fn swap_direct_forcing(&mut self, cells: &mut Vec<ForcedCell>, rows: &mut Vec<usize>) -> u64 {
+        let [nx, ny, nz] = self.state.dims;
         debug_assert!(
             cells.windows(2).all(|w| w[0].cell < w[1].cell)
                 && cells.iter().all(|c| c.cell < self.ncells()
@@ -184,11 +180,21 @@ impl<T: Real> Fluid<T> {
                     && c.target.iter().all(|u| u.is_finite())),
             "the coupling built an invalid forcing list"
         );
+        debug_assert!(
+            rows.len() == ny * nz + 1
+                && rows[ny * nz] == cells.len()
+                && (0..ny * nz)
+                    .all(|r| rows[r] <= rows[r + 1] && cells[rows[r]..rows[r + 1]].iter().all(|c| c.cell / nx == r)),
+            "the coupling built an invalid forcing row index"
+        );
         let forcing = &mut self.scratch.forcing;
         std::mem::swap(&mut forcing.cells, cells);
+        std::mem::swap(&mut forcing.rows, rows);
+        if forcing.cells.is_empty() {
+            forcing.rows.clear();
+        }
         forcing.version += 1;
-        self.index_forcing_rows();
-        self.scratch.forcing.version
+        forcing.version
     }
 
     /// `rows[r]`: the first forcing entry of x-row r (a counting pass).

@@ -181,7 +181,7 @@ impl<T: Real> Fluid<T> {
     /// m < −κρ or, with no fluid neighbour, when ε < `FORCED_EMPTY`, it has
     /// no interface neighbour or it touches no wall (module comment).
     fn conversion_mark(&self, c: usize, kappa: f64) -> (f64, Mark) {
-        let rho = self.density_at(c);
+        let rho = self.scratch.interface_density[c];
         let m = self.state.mass[c];
         let eps = m / rho;
         let (mut has_f, mut has_g, mut has_i, mut has_w) = (false, false, false, false);
@@ -404,6 +404,7 @@ impl<T: Real> Fluid<T> {
         for (&c, g) in l.from_gas.iter().zip(&l.new_populations) {
             self.write_cell(c, g);
             self.state.mass[c] = 0.0;
+            self.scratch.interface_density[c] = self.density_at(c);
         }
 
         // 6. Emptied cells: fluid neighbours become interface, full. A
@@ -418,7 +419,9 @@ impl<T: Real> Fluid<T> {
                 if let Some(nb) = self.neighbour(c, i) {
                     if self.state.flags[nb] == flags::FLUID {
                         self.state.flags[nb] = NEW_INTERFACE;
-                        self.state.mass[nb] = self.density_at(nb);
+                        let rho = self.density_at(nb);
+                        self.state.mass[nb] = rho;
+                        self.scratch.interface_density[nb] = rho;
                         l.from_fluid.push(nb);
                     }
                 }
@@ -431,7 +434,7 @@ impl<T: Real> Fluid<T> {
         let nx = self.state.dims[0];
         for &c in &l.filled {
             self.state.flags[c] = flags::FLUID;
-            l.excess.push((c, self.state.mass[c] - self.density_at(c), 1.0));
+            l.excess.push((c, self.state.mass[c] - self.scratch.interface_density[c], 1.0));
             self.state.mass[c] = 0.0;
             self.scratch.fill[c] = 1.0;
             l.rows.push(c / nx);
@@ -469,7 +472,7 @@ impl<T: Real> Fluid<T> {
                 .zip(&l.marks)
                 .filter(|&(&c, _)| fluid.state.flags[c] == flags::INTERFACE)
                 .map(|(&c, &(rho, _))| (c, rho));
-            let new = l.from_gas.iter().map(|&c| (c, fluid.density_at(c)));
+            let new = l.from_gas.iter().map(|&c| (c, fluid.scratch.interface_density[c]));
             merge_sorted(survivors, new, &mut l.next_interface, &mut l.next_density);
         }
         std::mem::swap(&mut self.scratch.interface, &mut l.next_interface);
@@ -564,7 +567,7 @@ impl<T: Real> Fluid<T> {
                 };
                 (DEFICIT_CAP * held, -total)
             } else {
-                ((OVERFILL_CAP * fluid.density_at(nb) - fluid.state.mass[nb]).max(0.0), total)
+                ((OVERFILL_CAP * fluid.scratch.interface_density[nb] - fluid.state.mass[nb]).max(0.0), total)
             };
             if amount > limit {
                 let factor = limit / amount;
@@ -617,7 +620,7 @@ impl<T: Real> Fluid<T> {
         for &s in &l.by_receiver {
             let nb = l.shares[s].0;
             if nb != last && self.state.flags[nb] == flags::INTERFACE {
-                self.scratch.fill[nb] = self.state.mass[nb] / self.density_at(nb);
+                self.scratch.fill[nb] = self.state.mass[nb] / self.scratch.interface_density[nb];
             }
             last = nb;
         }
