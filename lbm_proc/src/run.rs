@@ -453,10 +453,9 @@ fn record_frame(
     let mut scratch = std::mem::take(&mut frames.scratch);
     let [nx, ny, _] = setup.dims;
     // Each liquid cell counted at its centre with its mass ρ ε (lattice units; the rule needs ratios only).
-    let liquid = fluid.fill_field().iter().enumerate().filter(|(_, &fill)| fill > 0.0).map(|(c, &fill)| {
+    let liquid = fluid.liquid_cell_masses().into_iter().map(|(c, mass)| {
         let cell = [c % nx, (c / nx) % ny, c / (nx * ny)];
-        let density = fluid.sample(cell).map(|s| s.density).unwrap_or(1.0);
-        (setup.centre(cell)[0], density * fill)
+        (setup.centre(cell)[0], mass)
     });
     let fx = front_position(liquid, fraction, &mut scratch);
     frames.scratch = scratch;
