@@ -178,8 +178,10 @@ pub struct Coupling {
     /// `crossings[sphere_start[s]..sphere_start[s + 1]]` are sphere s's.
     crossings: Vec<Crossing>,
     sphere_start: Vec<usize>,
-    /// Crossings of each chunk of spheres, reused.
+    /// Crossings of each chunk of spheres, reused, and where each chunk's
+    /// crossings and slots start in `crossings` and `slots`.
     chunk_crossings: Vec<Vec<Crossing>>,
+    chunk_starts: Vec<(usize, usize)>,
     /// Crossing indices by row (a stable counting sort: ascending sphere
     /// within a row); `by_row[row_start[r]..row_start[r + 1]]` are row r's.
     by_row: Vec<u32>,
@@ -312,6 +314,7 @@ impl Coupling {
             crossings: Vec::new(),
             sphere_start: Vec::new(),
             chunk_crossings: Vec::new(),
+            chunk_starts: Vec::new(),
             by_row: Vec::new(),
             row_start: Vec::new(),
             part_rows: Vec::new(),
@@ -400,8 +403,9 @@ impl Coupling {
     }
 
     /// Stage of [`Coupling::apply`]: every sphere's crossings (chunks of
-    /// spheres in parallel, concatenated in sphere order), where each
-    /// crossing's run of slots starts, and where each sphere's crossings start.
+    /// spheres in parallel, concatenated in sphere order, also in parallel),
+    /// where each crossing's run of slots starts, and where each sphere's
+    /// crossings start.
     fn find_crossings(&mut self, dims: [usize; 3], faces: [Faces; 3]) -> Result<(), CouplingError> {
         let n = self.placed.len();
         let chunks = n.div_ceil(COVER_CHUNK);
@@ -414,23 +418,48 @@ impl Coupling {
                 }
             },
         );
+        // Where each chunk's crossings and slots go.
+        self.chunk_starts.clear();
+        let (mut crossings, mut slots) = (0usize, 0usize);
+        for buffer in &self.chunk_crossings[..chunks] {
+            self.chunk_starts.push((crossings, slots));
+            crossings += buffer.len();
+            slots += buffer.iter().map(|c| c.run as usize).sum::<usize>();
+        }
+        if slots > u32::MAX as usize {
+            return Err(CouplingError::TooLarge);
+        }
         self.crossings.clear();
+        self.crossings.reserve(crossings);
         self.sphere_start.clear();
         self.sphere_start.resize(n + 1, 0);
-        let mut slots = 0usize;
-        for buffer in &self.chunk_crossings[..chunks] {
-            for c in buffer {
-                self.sphere_start[c.sphere as usize + 1] += 1;
-                self.crossings.push(Crossing { slot: slots as u32, ..*c });
-                slots += c.run as usize;
-                if slots > u32::MAX as usize {
-                    return Err(CouplingError::TooLarge);
+        self.sphere_start[n] = crossings;
+        {
+            let out = SharedOut::new(&mut self.crossings.spare_capacity_mut()[..crossings]);
+            let starts = SharedOut::new(&mut self.sphere_start[..n]);
+            let (buffers, chunk_starts) = (&self.chunk_crossings, &self.chunk_starts);
+            (0..chunks).into_par_iter().for_each(|chunk| {
+                let (first, mut slot) = chunk_starts[chunk];
+                let buffer = &buffers[chunk];
+                // SAFETY: the chunks' ranges of crossings are disjoint (prefix sums of their counts).
+                let out = unsafe { out.slice(first, buffer.len()) };
+                let spheres = chunk * COVER_CHUNK..((chunk + 1) * COVER_CHUNK).min(n);
+                // SAFETY: each chunk writes the starts of its own spheres.
+                let starts = unsafe { starts.slice(spheres.start, spheres.len()) };
+                let mut k = 0;
+                for (s, start) in spheres.zip(starts) {
+                    // A sphere with no crossing (outside a walled box) starts where the next one does.
+                    *start = first + k;
+                    while k < buffer.len() && buffer[k].sphere as usize == s {
+                        out[k].write(Crossing { slot: slot as u32, ..buffer[k] });
+                        slot += buffer[k].run as usize;
+                        k += 1;
+                    }
                 }
-            }
+            });
         }
-        for s in 1..=n {
-            self.sphere_start[s] += self.sphere_start[s - 1];
-        }
+        // SAFETY: the chunks wrote every crossing in 0..crossings (their ranges tile it).
+        unsafe { self.crossings.set_len(crossings) };
         self.slots.resize(slots, Slot::default());
         Ok(())
     }
@@ -578,14 +607,21 @@ impl Coupling {
             self.part_entries.push(sum);
             sum += scratch.cells.len();
         }
+        // Not initialised first: that serial pass over ~500k entries (20 MB)
+        // cost more than the parallel copy.
         self.forced.clear();
-        self.forced.resize(sum, ForcedCell { cell: 0, weight: 0.0, target: [0.0; 3] });
-        let forced = SharedOut::new(&mut self.forced);
+        self.forced.reserve(sum);
+        let forced = SharedOut::new(&mut self.forced.spare_capacity_mut()[..sum]);
         let part_entries = &self.part_entries;
         self.parts[..parts].par_iter().enumerate().for_each(|(part, scratch)| {
             // SAFETY: the parts' entry ranges are disjoint (prefix sums of their counts).
-            unsafe { forced.slice(part_entries[part], scratch.cells.len()) }.copy_from_slice(&scratch.cells);
+            let out = unsafe { forced.slice(part_entries[part], scratch.cells.len()) };
+            for (o, cell) in out.iter_mut().zip(&scratch.cells) {
+                o.write(*cell);
+            }
         });
+        // SAFETY: the parts wrote every entry in 0..sum (their ranges tile it).
+        unsafe { self.forced.set_len(sum) };
         self.row_base.clear();
         self.row_base.resize(rows, 0);
         for part in 0..parts {
