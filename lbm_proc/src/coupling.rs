@@ -456,6 +456,8 @@ impl Coupling {
                         k += 1;
                     }
                 }
+                // Every crossing written, or `set_len` below would expose uninitialised ones.
+                assert_eq!(k, buffer.len(), "a chunk's crossings come in the order of its spheres");
             });
         }
         // SAFETY: the chunks wrote every crossing in 0..crossings (their ranges tile it).
