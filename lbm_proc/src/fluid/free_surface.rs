@@ -256,6 +256,8 @@ impl<T: Real> Fluid<T> {
     ///   populations are at equilibrium with u = 0.
     /// * The liquid mass so set is the reference of [`Fluid::mass_drift`].
     pub fn init_liquid(&mut self, liquid: impl Fn([usize; 3]) -> bool) -> Result<(), ConfigError> {
+        // A begun step's conversions read the kernel's interface densities: finish it first.
+        self.finish_step();
         let n = self.ncells();
         for c in 0..n {
             if self.state.flags[c] != flags::WALL {
@@ -314,6 +316,8 @@ impl<T: Real> Fluid<T> {
     /// conversions take over from the next step (lbm-free-surface.md §4
     /// "Gate"). Checks every cell first, so an error changes nothing.
     pub fn remove_walls(&mut self, cells: &[[usize; 3]]) -> Result<(), ConfigError> {
+        // A begun step's conversions read the kernel's interface densities: finish it first.
+        self.finish_step();
         for &cell in cells {
             if self.state.flags[self.index(cell)?] != flags::WALL {
                 return Err(ConfigError::NotWall(cell));
