@@ -278,7 +278,7 @@ pub struct Fluid<T: Real = f32> {
 /// Wall time per stage of [`Fluid::step`], s.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct FluidStageSeconds {
-    /// Row classification after flag changes and the forcing reset.
+    /// Row classification after flag changes, and sizing the applied-force list.
     pub prepare: f64,
     pub stream_collide: f64,
     /// Fill conversions, excess distribution, interface list (the mass
@@ -521,7 +521,7 @@ impl<T: Real> Fluid<T> {
     /// Density ρ = Σ f_i of cell index `c`, summed as [`Fluid::moments_at`] does.
     fn density_at(&self, c: usize) -> f64 {
         let n = self.ncells();
-        1.0 + (0..Q).map(|i| self.state.populations[i * n + c].to_f64()).sum::<f64>()
+        density_of(|i| self.state.populations[i * n + c].to_f64())
     }
 
     /// Density and velocity of `cell`, lattice units.
@@ -882,6 +882,22 @@ fn wrap(x: usize, d: i32, n: usize, faces: Faces) -> Option<usize> {
     }
 }
 
+/// ρ = 1 + Σ g_i of one cell from its stored deviations g_i = f_i − w_i,
+/// summed in f64 in direction order. Every density the conversions use is
+/// summed here (the kernel's kept ones and [`Fluid::density_at`]), so kept
+/// and recomputed densities agree bit for bit.
+#[inline(always)]
+fn density_of(g: impl Fn(usize) -> f64) -> f64 {
+    1.0 + (0..Q).map(g).sum::<f64>()
+}
+
+/// The index step from a cell to its neighbour along `e` in a box `nx` × `ny`
+/// cells wide, for cells off the box's faces (no wrap, no wall face).
+#[inline(always)]
+fn link_offset(e: [i32; 3], nx: usize, ny: usize) -> isize {
+    e[0] as isize + e[1] as isize * nx as isize + e[2] as isize * (nx * ny) as isize
+}
+
 /// `dst.copy_from_slice(src)`, inlined as vector moves for the common full
 /// chunk (a variable-length copy would call `memmove` 38 times per chunk).
 #[inline(always)]
@@ -1096,10 +1112,9 @@ impl<T: Real> Kernel<'_, T> {
             if class & ROW_ANY_INTERFACE != 0 {
                 for l in 0..n {
                     if self.flags[own + l] == flags::INTERFACE {
-                        // Summed as `Fluid::density_at` sums the stored values, to the same bits.
-                        let sum: f64 = (0..Q).map(|i| f[i][l].to_f64()).sum();
+                        // The values written below, summed as `Fluid::density_at` sums them.
                         // SAFETY: cell own + l lies in plane z, which only this task writes.
-                        unsafe { density.slice(own + l, 1)[0] = 1.0 + sum };
+                        unsafe { density.slice(own + l, 1)[0] = density_of(|i| f[i][l].to_f64()) };
                     }
                 }
             }
@@ -1317,11 +1332,10 @@ impl<T: Real> Kernel<'_, T> {
         let mut dm = 0.0;
         // Off the box's faces every source lies at a fixed offset.
         let inside = x > 0 && x + 1 < nx && y > 0 && y + 1 < ny && z > 0 && z + 1 < self.nz;
-        let (sy, sz) = (nx as isize, (nx * ny) as isize);
         for i in 1..Q {
             let e = E[i];
             let s = if inside {
-                (c as isize - (e[0] as isize + e[1] as isize * sy + e[2] as isize * sz)) as usize
+                (c as isize - link_offset(e, nx, ny)) as usize
             } else {
                 let (Some(xs), Some(ys), Some(zs)) = (
                     wrap(x, -e[0], nx, self.faces[0]),

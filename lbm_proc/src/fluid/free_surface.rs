@@ -166,11 +166,7 @@ impl<T: Real> Fluid<T> {
         let [nx, ny, nz] = self.state.dims;
         let [x, y, z] = self.coords(c);
         if x > 0 && x + 1 < nx && y > 0 && y + 1 < ny && z > 0 && z + 1 < nz {
-            let (sy, sz) = (nx as isize, (nx * ny) as isize);
-            std::array::from_fn(|i| {
-                let e = E[i];
-                Some((c as isize + e[0] as isize + e[1] as isize * sy + e[2] as isize * sz) as usize)
-            })
+            std::array::from_fn(|i| Some((c as isize + super::link_offset(E[i], nx, ny)) as usize))
         } else {
             std::array::from_fn(|i| self.neighbour(c, i))
         }
