@@ -9,6 +9,7 @@
 
 pub mod hydro;
 pub mod lammps;
+pub mod lanes;
 pub mod law;
 pub mod neighbours;
 pub mod packing;

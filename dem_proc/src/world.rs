@@ -10,7 +10,8 @@
 //!    grains are cut into [`FORCE_BLOCKS`] fixed blocks of rows; each block
 //!    walks its rows in order and adds every pair's force to both grains in
 //!    its own buffer (Newton's third law, one evaluation per pair), the blocks
-//!    in parallel;
+//!    in parallel. Touching pairs are evaluated [`LANES`] at a time
+//!    ([`evaluate_lanes`], bit for bit the scalar law) and added in pair order;
 //! 4. `sum_and_kick`: per grain, in parallel: gravity + external load + the
 //!    block sums in block order + walls, then v += ½Δt F/m, ω += ½Δt T/I.
 //!
@@ -31,7 +32,10 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::law::{evaluate, ContactInput, ContactLaw};
+use schemas::isa::Isa;
+
+use crate::lanes::{self, Lanes, Lanes3, LANES};
+use crate::law::{evaluate, evaluate_lanes, ContactInput, ContactLanes, ContactLaw};
 use crate::neighbours::{rebuild, CellGrid, PairList};
 use crate::vec3::{add, dot, neg, norm2, scale, sub};
 
@@ -196,6 +200,8 @@ pub struct World {
     pub stage_seconds: StageSeconds,
     grid: CellGrid,
     scratch: Scratch,
+    /// Instruction set of the pair kernel (results do not depend on it).
+    isa: Isa,
 }
 
 /// Wall time per stage of [`World::step`], s.
@@ -262,6 +268,7 @@ impl World {
             stage_seconds: StageSeconds::default(),
             grid,
             scratch: Scratch::default(),
+            isa: Isa::current(),
         };
         w.refresh_inverse_properties();
         w.build_neighbours();
@@ -288,6 +295,13 @@ impl World {
         self.external_force[slot] = force;
         self.external_torque[slot] = torque;
         self.has_external_load = true;
+    }
+
+    /// Chooses the pair kernel's instruction set (for tests and benchmarks:
+    /// results are the same on each). Pre: the CPU has it.
+    pub fn set_isa(&mut self, isa: Isa) {
+        assert!(isa <= Isa::best_supported(), "this CPU lacks {}", isa.name());
+        self.isa = isa;
     }
 
     /// Grain id of each storage slot.
@@ -657,12 +671,19 @@ impl World {
     /// Stage 3. Pre: the pair list covers every pair within reach.
     /// Post: each block's buffers hold the sums of its touching pairs, in row order.
     fn compute_contact_forces(&mut self) {
-        let dt = self.numerics.dt;
-        let law = self.grain_law;
         let g = &self.grains;
-        let props = &self.scratch.pair_props;
         let pl = &mut self.pairs;
-        let (row_start, pj) = (&pl.row_start, &pl.j);
+        let kernel = PairKernel {
+            law: self.grain_law,
+            dt: self.numerics.dt,
+            pos: &g.pos,
+            vel: &g.vel,
+            omega: &g.omega,
+            props: &self.scratch.pair_props,
+            row_start: &pl.row_start,
+            partner: &pl.j,
+        };
+        let row_start = &pl.row_start;
         // Each block owns the contiguous pair range of its rows.
         let mut parts: [(&mut [[f64; 3]], &mut [bool]); FORCE_BLOCKS] = Default::default();
         let (mut springs, mut touchings) = (pl.spring.as_mut_slice(), pl.touching.as_mut_slice());
@@ -673,55 +694,12 @@ impl World {
             *part = (s, t);
             (springs, touchings) = (s_rest, t_rest);
         }
-        self.scratch.blocks.par_iter_mut().zip(parts).for_each(|(block, (spring, touching))| {
-            block.force.iter_mut().for_each(|f| *f = [0.0; 3]);
-            block.torque.iter_mut().for_each(|t| *t = [0.0; 3]);
-            block.contacts.iter_mut().for_each(|c| *c = 0);
-            let w0 = block.window.start;
-            let first_pair = row_start[block.rows.start] as usize;
-            for i in block.rows.clone() {
-                let (pos_i, [ri, mi, inv_ii]) = (g.pos[i], props[i]);
-                for k in row_start[i] as usize..row_start[i + 1] as usize {
-                    let j = pj[k] as usize;
-                    let local = k - first_pair;
-                    let d = sub(g.pos[j], pos_i);
-                    let [rj, mj, inv_ij] = props[j];
-                    let dist2 = norm2(d);
-                    let reach = ri + rj;
-                    if dist2 >= reach * reach {
-                        // Writes only when needed: most candidates stay apart for many steps.
-                        if touching[local] {
-                            spring[local] = [0.0; 3];
-                            touching[local] = false;
-                        }
-                        continue;
-                    }
-                    let dist = dist2.sqrt();
-                    let overlap = reach - dist;
-                    let input = ContactInput {
-                        n: scale(d, 1.0 / dist),
-                        overlap,
-                        arm_i: ri - 0.5 * overlap,
-                        arm_j: rj - 0.5 * overlap,
-                        vel_i: g.vel[i],
-                        omega_i: g.omega[i],
-                        vel_j: g.vel[j],
-                        omega_j: g.omega[j],
-                        effective_mass: mi * mj / (mi + mj),
-                        inv_inertia_sum: inv_ii + inv_ij,
-                        rolling_diameter: 4.0 * ri * rj / (ri + rj),
-                    };
-                    let out = evaluate(&law, &input, dt, &mut spring[local]);
-                    touching[local] = true;
-                    let (qi, qj) = (i - w0, j - w0);
-                    block.force[qi] = add(block.force[qi], out.force_i);
-                    block.force[qj] = sub(block.force[qj], out.force_i);
-                    block.torque[qi] = add(block.torque[qi], out.torque_i);
-                    block.torque[qj] = add(block.torque[qj], out.torque_j);
-                    block.contacts[qi] += 1;
-                    block.contacts[qj] += 1;
-                }
-            }
+        let isa = self.isa;
+        self.scratch.blocks.par_iter_mut().zip(parts).for_each(|(block, (spring, touching))| match isa {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `isa` is AVX2 only where the CPU has AVX2 and FMA (`Isa::best_supported`).
+            Isa::Avx2 => unsafe { kernel.block_avx2(block, spring, touching) },
+            _ => kernel.block(block, spring, touching),
         });
     }
 
@@ -875,5 +853,184 @@ impl World {
             return 0.0;
         }
         self.coordination.iter().map(|&c| c as f64).sum::<f64>() / self.len() as f64
+    }
+}
+
+/// What the pair kernel (stage 3) reads: the grains and the pair list.
+struct PairKernel<'a> {
+    law: ContactLaw,
+    dt: f64,
+    pos: &'a [[f64; 3]],
+    vel: &'a [[f64; 3]],
+    omega: &'a [[f64; 3]],
+    /// (radius, mass, 1/I) per grain.
+    props: &'a [[f64; 3]],
+    row_start: &'a [u32],
+    partner: &'a [u32],
+}
+
+/// Touching pairs waiting for [`evaluate_lanes`]: the raw inputs of up to
+/// [`LANES`] contacts and where their results go.
+struct PairBatch {
+    len: usize,
+    /// Pair index within the block, and both grains' places in its window.
+    pair: [usize; LANES],
+    window_i: [usize; LANES],
+    window_j: [usize; LANES],
+    /// x_j − x_i and its squared length.
+    d: Lanes3,
+    dist2: Lanes,
+    radius_i: Lanes,
+    radius_j: Lanes,
+    mass_i: Lanes,
+    mass_j: Lanes,
+    inv_inertia_i: Lanes,
+    inv_inertia_j: Lanes,
+    vel_i: Lanes3,
+    omega_i: Lanes3,
+    vel_j: Lanes3,
+    omega_j: Lanes3,
+    spring: Lanes3,
+}
+
+impl PairBatch {
+    /// Empty, its unused lanes holding a harmless contact (unit grains
+    /// overlapping by 1 at rest), so that a part-full batch computes nothing
+    /// but finite numbers in them.
+    fn new() -> Self {
+        let (zero, one) = (Lanes::splat(0.0), Lanes::splat(1.0));
+        PairBatch {
+            len: 0,
+            pair: [0; LANES],
+            window_i: [0; LANES],
+            window_j: [0; LANES],
+            d: [one, zero, zero],
+            dist2: one,
+            radius_i: one,
+            radius_j: one,
+            mass_i: one,
+            mass_j: one,
+            inv_inertia_i: one,
+            inv_inertia_j: one,
+            vel_i: [zero; 3],
+            omega_i: [zero; 3],
+            vel_j: [zero; 3],
+            omega_j: [zero; 3],
+            spring: [zero; 3],
+        }
+    }
+
+    /// The contacts' geometry, lane by lane as the scalar kernel did it.
+    #[inline(always)]
+    fn inputs(&self) -> ContactLanes {
+        let (half, one, four) = (Lanes::splat(0.5), Lanes::splat(1.0), Lanes::splat(4.0));
+        let (ri, rj, mi, mj) = (self.radius_i, self.radius_j, self.mass_i, self.mass_j);
+        let reach = ri + rj;
+        let dist = self.dist2.sqrt();
+        let overlap = reach - dist;
+        ContactLanes {
+            n: lanes::scale(self.d, one / dist),
+            overlap,
+            arm_i: ri - half * overlap,
+            arm_j: rj - half * overlap,
+            vel_i: self.vel_i,
+            omega_i: self.omega_i,
+            vel_j: self.vel_j,
+            omega_j: self.omega_j,
+            effective_mass: mi * mj / (mi + mj),
+            inv_inertia_sum: self.inv_inertia_i + self.inv_inertia_j,
+            rolling_diameter: four * ri * rj / (ri + rj),
+        }
+    }
+}
+
+impl PairKernel<'_> {
+    /// One block's pairs (see [`World::compute_contact_forces`]).
+    fn block(&self, block: &mut BlockSums, spring: &mut [[f64; 3]], touching: &mut [bool]) {
+        self.block_body(block, spring, touching)
+    }
+
+    /// [`PairKernel::block`] built for AVX2 (same results, bit for bit).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn block_avx2(&self, block: &mut BlockSums, spring: &mut [[f64; 3]], touching: &mut [bool]) {
+        self.block_body(block, spring, touching)
+    }
+
+    /// Walks the block's rows in order; touching pairs are evaluated
+    /// [`LANES`] at a time and their forces added in pair order, so the
+    /// sums are those of one pair at a time.
+    #[inline(always)]
+    fn block_body(&self, block: &mut BlockSums, spring: &mut [[f64; 3]], touching: &mut [bool]) {
+        block.force.iter_mut().for_each(|f| *f = [0.0; 3]);
+        block.torque.iter_mut().for_each(|t| *t = [0.0; 3]);
+        block.contacts.iter_mut().for_each(|c| *c = 0);
+        let w0 = block.window.start;
+        let first_pair = self.row_start[block.rows.start] as usize;
+        let mut batch = PairBatch::new();
+        for i in block.rows.clone() {
+            let (pos_i, [ri, mi, inv_ii]) = (self.pos[i], self.props[i]);
+            for k in self.row_start[i] as usize..self.row_start[i + 1] as usize {
+                let j = self.partner[k] as usize;
+                let local = k - first_pair;
+                let d = sub(self.pos[j], pos_i);
+                let [rj, mj, inv_ij] = self.props[j];
+                let dist2 = norm2(d);
+                let reach = ri + rj;
+                if dist2 >= reach * reach {
+                    // Writes only when needed: most candidates stay apart for many steps.
+                    if touching[local] {
+                        spring[local] = [0.0; 3];
+                        touching[local] = false;
+                    }
+                    continue;
+                }
+                let l = batch.len;
+                batch.pair[l] = local;
+                batch.window_i[l] = i - w0;
+                batch.window_j[l] = j - w0;
+                lanes::set_lane(&mut batch.d, l, d);
+                batch.dist2.0[l] = dist2;
+                batch.radius_i.0[l] = ri;
+                batch.radius_j.0[l] = rj;
+                batch.mass_i.0[l] = mi;
+                batch.mass_j.0[l] = mj;
+                batch.inv_inertia_i.0[l] = inv_ii;
+                batch.inv_inertia_j.0[l] = inv_ij;
+                lanes::set_lane(&mut batch.vel_i, l, self.vel[i]);
+                lanes::set_lane(&mut batch.omega_i, l, self.omega[i]);
+                lanes::set_lane(&mut batch.vel_j, l, self.vel[j]);
+                lanes::set_lane(&mut batch.omega_j, l, self.omega[j]);
+                lanes::set_lane(&mut batch.spring, l, spring[local]);
+                batch.len += 1;
+                if batch.len == LANES {
+                    self.flush(&mut batch, block, spring, touching);
+                }
+            }
+        }
+        self.flush(&mut batch, block, spring, touching);
+    }
+
+    /// Evaluates the batch and adds its forces, lane (pair) order.
+    #[inline(always)]
+    fn flush(&self, batch: &mut PairBatch, block: &mut BlockSums, spring: &mut [[f64; 3]], touching: &mut [bool]) {
+        if batch.len == 0 {
+            return;
+        }
+        let input = batch.inputs();
+        let out = evaluate_lanes(&self.law, &input, self.dt, &mut batch.spring);
+        for l in 0..batch.len {
+            let (local, qi, qj) = (batch.pair[l], batch.window_i[l], batch.window_j[l]);
+            spring[local] = lanes::lane(&batch.spring, l);
+            touching[local] = true;
+            let force_i = lanes::lane(&out.force_i, l);
+            block.force[qi] = add(block.force[qi], force_i);
+            block.force[qj] = sub(block.force[qj], force_i);
+            block.torque[qi] = add(block.torque[qi], lanes::lane(&out.torque_i, l));
+            block.torque[qj] = add(block.torque[qj], lanes::lane(&out.torque_j, l));
+            block.contacts[qi] += 1;
+            block.contacts[qj] += 1;
+        }
+        batch.len = 0;
     }
 }

@@ -10,6 +10,7 @@ use dem_proc::rng::SplitMix64;
 use dem_proc::run::DemState;
 use dem_proc::setup::DemSetup;
 use dem_proc::world::World;
+use schemas::isa::Isa;
 use schemas::Scene;
 
 const SMALL_COLUMN: &str = r#"
@@ -194,4 +195,27 @@ fn spatial_resort_keeps_ids_and_physics() {
     assert!(worst < 1e-9, "sorted run differs by {worst:.3e} m");
     let moved = plain.grains.vel.iter().filter(|v| v[0].abs() > 1e-3).count();
     assert!(moved > 20, "only {moved} grains moving");
+}
+
+/// The pair kernel evaluates contacts in lane batches; every instruction set
+/// it is built for gives the same states, bit for bit (and so the same as
+/// one contact at a time: `tests/pair_lanes.rs` checks the law itself).
+#[test]
+fn same_result_on_every_instruction_set() {
+    let scene = scene();
+    let run = |isa: Isa| {
+        let mut w = collapse_world(&scene);
+        w.set_isa(isa);
+        for _ in 0..3000 {
+            w.step();
+        }
+        DemState::capture(&w)
+    };
+    let levels = Isa::all_supported();
+    let reference = run(levels[0]);
+    let moved = reference.grains.vel.iter().filter(|v| v[0].abs() > 1e-3).count();
+    assert!(moved > 20, "only {moved} grains moving");
+    for &isa in &levels[1..] {
+        assert!(run(isa) == reference, "states differ between {} and {}", levels[0].name(), isa.name());
+    }
 }

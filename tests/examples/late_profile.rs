@@ -96,8 +96,11 @@ fn main() {
     let per = |s: f64| s / exchanges as f64 * 1e3;
     let d = world.stage_seconds;
     let mut line = format!(
-        "{{\"time\":{},\"exchanges\":{exchanges},\"dem_neighbour_builds\":{},\"ms_per_exchange\":{{\"dem\":{:.2},\"dem_kick_and_drift\":{:.2},\"dem_update_neighbours\":{:.2},\"dem_contact_forces\":{:.2},\"dem_sum_and_kick\":{:.2}",
+        "{{\"time\":{},\"exchanges\":{exchanges},\"dem_grains\":{},\"dem_listed_pairs\":{},\"dem_mean_coordination\":{:.3},\"dem_neighbour_builds\":{},\"ms_per_exchange\":{{\"dem\":{:.2},\"dem_kick_and_drift\":{:.2},\"dem_update_neighbours\":{:.2},\"dem_contact_forces\":{:.2},\"dem_sum_and_kick\":{:.2}",
         dem_state.time,
+        world.len(),
+        world.pairs.len(),
+        world.mean_coordination(),
         world.neighbour_builds,
         per(dem_seconds),
         per(d.kick_and_drift - dem_before.kick_and_drift),

@@ -1,0 +1,145 @@
+//! f64 lanes for evaluating [`LANES`] contacts at once.
+//!
+//! Every operation is the scalar operation of [`crate::vec3`] applied lane by
+//! lane, so a kernel written with these types rounds exactly as its scalar
+//! twin: LLVM turns each fixed-length lane loop into vector instructions
+//! where the CPU has them (IEEE 754 division and square root are correctly
+//! rounded in both forms, and Rust never fuses a multiply and an add on its
+//! own). Branches become lane selects: both sides are computed, one kept.
+
+use std::ops::{Add, Div, Mul, Neg, Sub};
+
+/// Contacts per batch.
+pub const LANES: usize = 8;
+
+/// One f64 per lane.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(32))]
+pub struct Lanes(pub [f64; LANES]);
+
+/// A vector of three components, [`LANES`] lanes each.
+pub type Lanes3 = [Lanes; 3];
+
+impl Lanes {
+    #[inline(always)]
+    pub fn splat(x: f64) -> Lanes {
+        Lanes([x; LANES])
+    }
+    #[inline(always)]
+    fn map(self, f: impl Fn(f64) -> f64) -> Lanes {
+        Lanes(std::array::from_fn(|l| f(self.0[l])))
+    }
+    #[inline(always)]
+    fn zip(self, o: Lanes, f: impl Fn(f64, f64) -> f64) -> Lanes {
+        Lanes(std::array::from_fn(|l| f(self.0[l], o.0[l])))
+    }
+    #[inline(always)]
+    pub fn sqrt(self) -> Lanes {
+        self.map(f64::sqrt)
+    }
+    /// `f64::max` per lane.
+    #[inline(always)]
+    pub fn max(self, o: Lanes) -> Lanes {
+        self.zip(o, f64::max)
+    }
+    /// `f64::min` per lane.
+    #[inline(always)]
+    pub fn min(self, o: Lanes) -> Lanes {
+        self.zip(o, f64::min)
+    }
+    /// Per lane: `if self > other { then } else { otherwise }`.
+    #[inline(always)]
+    pub fn if_greater(self, other: Lanes, then: Lanes, otherwise: Lanes) -> Lanes {
+        Lanes(std::array::from_fn(|l| if self.0[l] > other.0[l] { then.0[l] } else { otherwise.0[l] }))
+    }
+}
+
+impl Add for Lanes {
+    type Output = Lanes;
+    #[inline(always)]
+    fn add(self, o: Lanes) -> Lanes {
+        self.zip(o, |a, b| a + b)
+    }
+}
+impl Sub for Lanes {
+    type Output = Lanes;
+    #[inline(always)]
+    fn sub(self, o: Lanes) -> Lanes {
+        self.zip(o, |a, b| a - b)
+    }
+}
+impl Mul for Lanes {
+    type Output = Lanes;
+    #[inline(always)]
+    fn mul(self, o: Lanes) -> Lanes {
+        self.zip(o, |a, b| a * b)
+    }
+}
+impl Div for Lanes {
+    type Output = Lanes;
+    #[inline(always)]
+    fn div(self, o: Lanes) -> Lanes {
+        self.zip(o, |a, b| a / b)
+    }
+}
+impl Neg for Lanes {
+    type Output = Lanes;
+    #[inline(always)]
+    fn neg(self) -> Lanes {
+        self.map(|a| -a)
+    }
+}
+
+/// [`crate::vec3::add`] per lane.
+#[inline(always)]
+pub fn add(a: Lanes3, b: Lanes3) -> Lanes3 {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+/// [`crate::vec3::sub`] per lane.
+#[inline(always)]
+pub fn sub(a: Lanes3, b: Lanes3) -> Lanes3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+/// [`crate::vec3::scale`] per lane.
+#[inline(always)]
+pub fn scale(a: Lanes3, s: Lanes) -> Lanes3 {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+/// [`crate::vec3::dot`] per lane (same order of the sums).
+#[inline(always)]
+pub fn dot(a: Lanes3, b: Lanes3) -> Lanes {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+/// [`crate::vec3::cross`] per lane.
+#[inline(always)]
+pub fn cross(a: Lanes3, b: Lanes3) -> Lanes3 {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+/// [`crate::vec3::norm2`] per lane.
+#[inline(always)]
+pub fn norm2(a: Lanes3) -> Lanes {
+    dot(a, a)
+}
+/// [`crate::vec3::neg`] per lane.
+#[inline(always)]
+pub fn neg(a: Lanes3) -> Lanes3 {
+    [-a[0], -a[1], -a[2]]
+}
+/// Per lane: `if s > t { then } else { otherwise }` on all three components.
+#[inline(always)]
+pub fn if_greater(s: Lanes, t: Lanes, then: Lanes3, otherwise: Lanes3) -> Lanes3 {
+    std::array::from_fn(|a| s.if_greater(t, then[a], otherwise[a]))
+}
+
+/// Lane `l` of a vector.
+#[inline(always)]
+pub fn lane(v: &Lanes3, l: usize) -> [f64; 3] {
+    [v[0].0[l], v[1].0[l], v[2].0[l]]
+}
+/// Writes `x` into lane `l` of a vector.
+#[inline(always)]
+pub fn set_lane(v: &mut Lanes3, l: usize, x: [f64; 3]) {
+    for a in 0..3 {
+        v[a].0[l] = x[a];
+    }
+}
