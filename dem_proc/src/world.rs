@@ -35,7 +35,7 @@ use serde::{Deserialize, Serialize};
 use schemas::isa::Isa;
 
 use crate::lanes::{self, Lanes, Lanes3, LANES};
-use crate::law::{evaluate, evaluate_lanes, ContactInput, ContactLanes, ContactLaw};
+use crate::law::{evaluate_lanes, ContactLanes, ContactLaw};
 use crate::neighbours::{rebuild, CellGrid, PairList};
 use crate::vec3::{add, dot, neg, norm2, scale, sub};
 
@@ -715,19 +715,24 @@ impl World {
     }
 
     fn sum(&mut self, kick: bool) {
-        let dt = self.numerics.dt;
-        let half = 0.5 * dt;
-        let grav = self.gravity;
         let nw = self.walls.len();
-        let walls = &self.walls;
-        let wall_law = self.wall_law;
-        let blocks = &self.scratch.blocks;
-        let inv_m = &self.scratch.inv_mass;
-        let inv_i = &self.scratch.inv_inertia;
-        let ext = self.has_external_load.then_some((&self.external_force, &self.external_torque));
-        let near_walls = &self.scratch.near_walls;
         let g = &mut self.grains;
-        let (pos, radius, mass) = (&g.pos, &g.radius, &g.mass);
+        let kernel = GrainSumKernel {
+            wall_law: self.wall_law,
+            dt: self.numerics.dt,
+            kick,
+            gravity: self.gravity,
+            walls: &self.walls,
+            blocks: &self.scratch.blocks,
+            inv_mass: &self.scratch.inv_mass,
+            inv_inertia: &self.scratch.inv_inertia,
+            external: self.has_external_load.then_some((&self.external_force, &self.external_torque)),
+            near_walls: &self.scratch.near_walls,
+            pos: &g.pos,
+            radius: &g.radius,
+            mass: &g.mass,
+        };
+        let isa = self.isa;
         g.force
             .par_chunks_mut(GRAIN_CHUNK)
             .zip(g.torque.par_chunks_mut(GRAIN_CHUNK))
@@ -736,64 +741,13 @@ impl World {
             .zip(self.coordination.par_chunks_mut(GRAIN_CHUNK))
             .zip(self.wall_springs.par_chunks_mut(GRAIN_CHUNK * nw.max(1)))
             .enumerate()
-            .for_each(|(c, (((((force, torque), vel), omega), coord), wsprings))| {
-                let base = c * GRAIN_CHUNK;
-                for k in 0..force.len() {
-                    let p = base + k;
-                    let (mut f, mut t) = match ext {
-                        Some((ext_f, ext_t)) => (add(scale(grav, mass[p]), ext_f[p]), ext_t[p]),
-                        None => (add(scale(grav, mass[p]), [0.0; 3]), [0.0; 3]),
-                    };
-                    let mut contacts = 0u16;
-                    for block in blocks.iter().filter(|b| b.window.contains(&p)) {
-                        let q = p - block.window.start;
-                        f = add(f, block.force[q]);
-                        t = add(t, block.torque[q]);
-                        contacts += block.contacts[q];
-                    }
-                    let (v, w, x, r) = (vel[k], omega[k], pos[p], radius[p]);
-                    let mut near = near_walls[p];
-                    while near != 0 {
-                        let wi = near.trailing_zeros() as usize;
-                        near &= near - 1;
-                        let (wall, spring) = (&walls[wi], &mut wsprings[k * nw + wi]);
-                        if !wall.active {
-                            continue;
-                        }
-                        let gap = dot(sub(x, wall.point), wall.normal);
-                        let overlap = r - gap;
-                        if overlap <= 0.0 {
-                            if *spring != [0.0; 3] {
-                                *spring = [0.0; 3];
-                            }
-                            continue;
-                        }
-                        let input = ContactInput {
-                            n: neg(wall.normal),
-                            overlap,
-                            arm_i: r - overlap,
-                            arm_j: 0.0,
-                            vel_i: v,
-                            omega_i: w,
-                            vel_j: [0.0; 3],
-                            omega_j: [0.0; 3],
-                            effective_mass: mass[p],
-                            inv_inertia_sum: inv_i[p],
-                            rolling_diameter: 2.0 * r,
-                        };
-                        let out = evaluate(&wall_law, &input, dt, spring);
-                        f = add(f, out.force_i);
-                        t = add(t, out.torque_i);
-                    }
-                    force[k] = f;
-                    torque[k] = t;
-                    coord[k] = contacts;
-                    if kick {
-                        for a in 0..3 {
-                            vel[k][a] += half * force[k][a] * inv_m[p];
-                            omega[k][a] += half * torque[k][a] * inv_i[p];
-                        }
-                    }
+            .for_each(|(c, (((((force, torque), vel), omega), contacts), wall_springs))| {
+                let chunk = GrainChunk { first: c * GRAIN_CHUNK, force, torque, vel, omega, contacts, wall_springs };
+                match isa {
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: `isa` is AVX2 only where the CPU has AVX2 and FMA (`Isa::best_supported`).
+                    Isa::Avx2 => unsafe { kernel.chunk_avx2(chunk) },
+                    _ => kernel.chunk(chunk),
                 }
             });
     }
@@ -1030,6 +984,176 @@ impl PairKernel<'_> {
             block.torque[qj] = add(block.torque[qj], lanes::lane(&out.torque_j, l));
             block.contacts[qi] += 1;
             block.contacts[qj] += 1;
+        }
+        batch.len = 0;
+    }
+}
+
+/// What the per-grain sum (stage 4) reads.
+struct GrainSumKernel<'a> {
+    wall_law: ContactLaw,
+    dt: f64,
+    /// Whether to kick the velocities after summing (not in `prime_forces`).
+    kick: bool,
+    gravity: [f64; 3],
+    walls: &'a [Wall],
+    blocks: &'a [BlockSums],
+    inv_mass: &'a [f64],
+    inv_inertia: &'a [f64],
+    external: Option<(&'a Vec<[f64; 3]>, &'a Vec<[f64; 3]>)>,
+    near_walls: &'a [u32],
+    pos: &'a [[f64; 3]],
+    radius: &'a [f64],
+    mass: &'a [f64],
+}
+
+/// One parallel task of stage 4: [`GRAIN_CHUNK`] grains from `first` on.
+struct GrainChunk<'a> {
+    first: usize,
+    force: &'a mut [[f64; 3]],
+    torque: &'a mut [[f64; 3]],
+    vel: &'a mut [[f64; 3]],
+    omega: &'a mut [[f64; 3]],
+    contacts: &'a mut [u16],
+    /// The chunk's grain × wall springs.
+    wall_springs: &'a mut [[f64; 3]],
+}
+
+/// Grain–wall contacts waiting for [`evaluate_lanes`].
+struct WallBatch {
+    len: usize,
+    /// Grain within the chunk, and its spring within the chunk's springs.
+    grain: [usize; LANES],
+    spring_at: [usize; LANES],
+    input: ContactLanes,
+    spring: Lanes3,
+}
+
+impl WallBatch {
+    /// Empty, unused lanes holding a harmless contact (see [`PairBatch::new`]);
+    /// the wall's side of every lane (arm, velocity, spin) is zero for good.
+    fn new() -> Self {
+        let (zero, one) = (Lanes::splat(0.0), Lanes::splat(1.0));
+        WallBatch {
+            len: 0,
+            grain: [0; LANES],
+            spring_at: [0; LANES],
+            input: ContactLanes {
+                n: [one, zero, zero],
+                overlap: one,
+                arm_i: one,
+                arm_j: zero,
+                vel_i: [zero; 3],
+                omega_i: [zero; 3],
+                vel_j: [zero; 3],
+                omega_j: [zero; 3],
+                effective_mass: one,
+                inv_inertia_sum: one,
+                rolling_diameter: one,
+            },
+            spring: [zero; 3],
+        }
+    }
+}
+
+impl GrainSumKernel<'_> {
+    fn chunk(&self, chunk: GrainChunk) {
+        self.chunk_body(chunk)
+    }
+
+    /// [`GrainSumKernel::chunk`] built for AVX2 (same results, bit for bit).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn chunk_avx2(&self, chunk: GrainChunk) {
+        self.chunk_body(chunk)
+    }
+
+    /// Per grain: gravity + external load + the block sums in block order,
+    /// then its wall contacts in wall order ([`LANES`] contacts of the chunk
+    /// evaluated at a time, each added to its own grain in that order), then
+    /// the kick.
+    #[inline(always)]
+    fn chunk_body(&self, chunk: GrainChunk) {
+        let GrainChunk { first, force, torque, vel, omega, contacts, wall_springs } = chunk;
+        let nw = self.walls.len();
+        let mut batch = WallBatch::new();
+        for k in 0..force.len() {
+            let p = first + k;
+            let (mut f, mut t) = match self.external {
+                Some((ext_f, ext_t)) => (add(scale(self.gravity, self.mass[p]), ext_f[p]), ext_t[p]),
+                None => (add(scale(self.gravity, self.mass[p]), [0.0; 3]), [0.0; 3]),
+            };
+            let mut count = 0u16;
+            for block in self.blocks.iter().filter(|b| b.window.contains(&p)) {
+                let q = p - block.window.start;
+                f = add(f, block.force[q]);
+                t = add(t, block.torque[q]);
+                count += block.contacts[q];
+            }
+            force[k] = f;
+            torque[k] = t;
+            contacts[k] = count;
+            let (x, r) = (self.pos[p], self.radius[p]);
+            let mut near = self.near_walls[p];
+            while near != 0 {
+                let wi = near.trailing_zeros() as usize;
+                near &= near - 1;
+                let wall = &self.walls[wi];
+                if !wall.active {
+                    continue;
+                }
+                let at = k * nw + wi;
+                let gap = dot(sub(x, wall.point), wall.normal);
+                let overlap = r - gap;
+                if overlap <= 0.0 {
+                    if wall_springs[at] != [0.0; 3] {
+                        wall_springs[at] = [0.0; 3];
+                    }
+                    continue;
+                }
+                let (l, c) = (batch.len, &mut batch.input);
+                batch.grain[l] = k;
+                batch.spring_at[l] = at;
+                lanes::set_lane(&mut c.n, l, neg(wall.normal));
+                c.overlap.0[l] = overlap;
+                c.arm_i.0[l] = r - overlap;
+                lanes::set_lane(&mut c.vel_i, l, vel[k]);
+                lanes::set_lane(&mut c.omega_i, l, omega[k]);
+                c.effective_mass.0[l] = self.mass[p];
+                c.inv_inertia_sum.0[l] = self.inv_inertia[p];
+                c.rolling_diameter.0[l] = 2.0 * r;
+                lanes::set_lane(&mut batch.spring, l, wall_springs[at]);
+                batch.len += 1;
+                if batch.len == LANES {
+                    self.flush(&mut batch, force, torque, wall_springs);
+                }
+            }
+        }
+        self.flush(&mut batch, force, torque, wall_springs);
+        if self.kick {
+            let half = 0.5 * self.dt;
+            for k in 0..force.len() {
+                let p = first + k;
+                for a in 0..3 {
+                    vel[k][a] += half * force[k][a] * self.inv_mass[p];
+                    omega[k][a] += half * torque[k][a] * self.inv_inertia[p];
+                }
+            }
+        }
+    }
+
+    /// Evaluates the batch and adds each contact to its grain, lane order.
+    #[inline(always)]
+    fn flush(&self, batch: &mut WallBatch, force: &mut [[f64; 3]], torque: &mut [[f64; 3]], springs: &mut [[f64; 3]]) {
+        if batch.len == 0 {
+            return;
+        }
+        let out = evaluate_lanes(&self.wall_law, &batch.input, self.dt, &mut batch.spring);
+        for l in 0..batch.len {
+            let k = batch.grain[l];
+            springs[batch.spring_at[l]] = lanes::lane(&batch.spring, l);
+            force[k] = add(force[k], lanes::lane(&out.force_i, l));
+            torque[k] = add(torque[k], lanes::lane(&out.torque_i, l));
         }
         batch.len = 0;
     }
