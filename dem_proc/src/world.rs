@@ -726,7 +726,7 @@ impl World {
             blocks: &self.scratch.blocks,
             inv_mass: &self.scratch.inv_mass,
             inv_inertia: &self.scratch.inv_inertia,
-            external: self.has_external_load.then_some((&self.external_force, &self.external_torque)),
+            external: self.has_external_load.then_some((&self.external_force[..], &self.external_torque[..])),
             near_walls: &self.scratch.near_walls,
             pos: &g.pos,
             radius: &g.radius,
@@ -989,6 +989,9 @@ impl PairKernel<'_> {
     }
 }
 
+/// Force and torque per grain slot.
+type ExternalLoads<'a> = (&'a [[f64; 3]], &'a [[f64; 3]]);
+
 /// What the per-grain sum (stage 4) reads.
 struct GrainSumKernel<'a> {
     wall_law: ContactLaw,
@@ -1000,7 +1003,8 @@ struct GrainSumKernel<'a> {
     blocks: &'a [BlockSums],
     inv_mass: &'a [f64],
     inv_inertia: &'a [f64],
-    external: Option<(&'a Vec<[f64; 3]>, &'a Vec<[f64; 3]>)>,
+    /// Held external force and torque per grain, if any were ever set.
+    external: Option<ExternalLoads<'a>>,
     near_walls: &'a [u32],
     pos: &'a [[f64; 3]],
     radius: &'a [f64],
