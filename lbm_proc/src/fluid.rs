@@ -34,6 +34,8 @@
 
 use rayon::prelude::*;
 use schemas::isa::Isa;
+
+use crate::memory::{huge_copy, huge_vec};
 use schemas::scene::ForcingGain;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -307,22 +309,31 @@ impl<T: Real> Fluid<T> {
             .filter(|&n| n > 0 && n.checked_mul(Q).is_some())
             .ok_or(ConfigError::Dims(dims))?;
         let rest = crate::lattice::equilibrium(1.0, params.acceleration.map(|a| 0.5 * a));
-        let populations = (0..Q * ncells).map(|k| T::from_f64(rest[k / ncells] - W[k / ncells])).collect();
         let state = FluidState {
             dims,
             faces,
-            flags: vec![flags::FLUID; ncells],
-            populations,
-            mass: vec![0.0; ncells],
+            flags: huge_vec(ncells, |_| flags::FLUID),
+            populations: huge_vec(Q * ncells, |k| T::from_f64(rest[k / ncells] - W[k / ncells])),
+            mass: huge_vec(ncells, |_| 0.0),
             pending_excess: 0.0,
             reference_mass: None,
             step: 0,
         };
-        Self::from_state(state, params)
+        Self::from_placed_state(state, params)
     }
 
     /// Continues from a saved state.
-    pub fn from_state(state: FluidState<T>, params: FluidParams) -> Result<Self, ConfigError> {
+    pub fn from_state(mut state: FluidState<T>, params: FluidParams) -> Result<Self, ConfigError> {
+        // A decoded state's arrays were touched on normal pages: copied once
+        // onto huge pages (memory.rs), ~1 s for the lab column's 1.5 GB.
+        state.flags = huge_copy(&state.flags);
+        state.populations = huge_copy(&state.populations);
+        state.mass = huge_copy(&state.mass);
+        Self::from_placed_state(state, params)
+    }
+
+    /// [`Fluid::from_state`] for a state whose arrays are already placed.
+    fn from_placed_state(state: FluidState<T>, params: FluidParams) -> Result<Self, ConfigError> {
         params.validate()?;
         let [nx, ny, nz] = state.dims;
         let ncells = nx * ny * nz;
@@ -349,12 +360,12 @@ impl<T: Real> Fluid<T> {
             return Err(ConfigError::State("liquid masses must be finite".into()));
         }
         let scratch = Scratch {
-            next: state.populations.clone(),
+            next: huge_copy(&state.populations),
             rows: vec![0; ny * nz],
             spans: vec![(0, 0); ny * nz],
             rows_stale: true,
-            fill: vec![0.0; ncells],
-            interface_density: vec![0.0; ncells],
+            fill: huge_vec(ncells, |_| 0.0),
+            interface_density: huge_vec(ncells, |_| 0.0),
             interface: Vec::new(),
             fluid_count: 0,
             pending_returned: 0,

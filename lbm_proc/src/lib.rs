@@ -10,6 +10,7 @@
 //! * [`watchdog`]: the stability check with a typed diagnosis;
 //! * [`run`]: a whole fluid-only run: gates, frames, MCAP, summary;
 //! * [`setup`]: a checked scene (SI) on the lattice: box, units, gates, liquid;
+//! * [`memory`]: the lattice arrays on huge pages (fewer TLB misses);
 //! * [`real`]: the population float type (f32 default, f64 for comparison);
 //! * [`bench`]: bulk throughput and memory bandwidth measurement.
 //!
@@ -20,6 +21,7 @@ pub mod coupling;
 pub mod fluid;
 pub mod grains;
 pub mod lattice;
+pub mod memory;
 pub mod real;
 pub mod run;
 pub mod setup;
