@@ -90,41 +90,10 @@ impl Neg for Lanes {
     }
 }
 
-/// [`crate::vec3::add`] per lane.
-#[inline(always)]
-pub fn add(a: Lanes3, b: Lanes3) -> Lanes3 {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-/// [`crate::vec3::sub`] per lane.
-#[inline(always)]
-pub fn sub(a: Lanes3, b: Lanes3) -> Lanes3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-/// [`crate::vec3::scale`] per lane.
-#[inline(always)]
-pub fn scale(a: Lanes3, s: Lanes) -> Lanes3 {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-/// [`crate::vec3::dot`] per lane (same order of the sums).
-#[inline(always)]
-pub fn dot(a: Lanes3, b: Lanes3) -> Lanes {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-/// [`crate::vec3::cross`] per lane.
-#[inline(always)]
-pub fn cross(a: Lanes3, b: Lanes3) -> Lanes3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-/// [`crate::vec3::norm2`] per lane.
-#[inline(always)]
-pub fn norm2(a: Lanes3) -> Lanes {
-    dot(a, a)
-}
-/// [`crate::vec3::neg`] per lane.
-#[inline(always)]
-pub fn neg(a: Lanes3) -> Lanes3 {
-    [-a[0], -a[1], -a[2]]
-}
+/// The vector operations of [`crate::vec3`], lane by lane (they are
+/// generic over the component).
+pub use crate::vec3::{add, cross, dot, neg, norm2, scale, sub};
+
 /// Per lane: `if s > t { then } else { otherwise }` on all three components.
 #[inline(always)]
 pub fn if_greater(s: Lanes, t: Lanes, then: Lanes3, otherwise: Lanes3) -> Lanes3 {

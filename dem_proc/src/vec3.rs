@@ -1,35 +1,39 @@
-//! Small inline operations on `[f64; 3]` for the hot kernels: plain scalar
-//! code the compiler keeps in registers (measured ~2x fewer instructions than
-//! the generic nalgebra operators in these loops; nalgebra stays in the
-//! non-hot code and the tests).
+//! Small inline operations on three-component vectors for the hot kernels:
+//! plain scalar code the compiler keeps in registers (measured ~2x fewer
+//! instructions than the generic nalgebra operators in these loops;
+//! nalgebra stays in the non-hot code and the tests). Generic over the
+//! component so that the contact kernel's lanes ([`crate::lanes::Lanes`],
+//! one contact per lane) use the very same operations as `f64`.
+
+use std::ops::{Add, Mul, Neg, Sub};
 
 pub type Vec3 = [f64; 3];
 
 #[inline(always)]
-pub fn add(a: Vec3, b: Vec3) -> Vec3 {
+pub fn add<T: Copy + Add<Output = T>>(a: [T; 3], b: [T; 3]) -> [T; 3] {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
 #[inline(always)]
-pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
+pub fn sub<T: Copy + Sub<Output = T>>(a: [T; 3], b: [T; 3]) -> [T; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 #[inline(always)]
-pub fn scale(a: Vec3, s: f64) -> Vec3 {
+pub fn scale<T: Copy + Mul<Output = T>>(a: [T; 3], s: T) -> [T; 3] {
     [a[0] * s, a[1] * s, a[2] * s]
 }
 #[inline(always)]
-pub fn dot(a: Vec3, b: Vec3) -> f64 {
+pub fn dot<T: Copy + Add<Output = T> + Mul<Output = T>>(a: [T; 3], b: [T; 3]) -> T {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 #[inline(always)]
-pub fn cross(a: Vec3, b: Vec3) -> Vec3 {
+pub fn cross<T: Copy + Sub<Output = T> + Mul<Output = T>>(a: [T; 3], b: [T; 3]) -> [T; 3] {
     [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 #[inline(always)]
-pub fn norm2(a: Vec3) -> f64 {
+pub fn norm2<T: Copy + Add<Output = T> + Mul<Output = T>>(a: [T; 3]) -> T {
     dot(a, a)
 }
 #[inline(always)]
-pub fn neg(a: Vec3) -> Vec3 {
+pub fn neg<T: Copy + Neg<Output = T>>(a: [T; 3]) -> [T; 3] {
     [-a[0], -a[1], -a[2]]
 }
