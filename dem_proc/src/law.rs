@@ -68,6 +68,9 @@ pub struct ContactOutput {
 }
 
 /// Evaluates the contact and advances its tangential spring `spring` by `dt`.
+/// The law as written, one contact with its branches: the reference that
+/// [`evaluate_lanes`], which the solver runs, is tested against bit for bit
+/// (`tests/pair_lanes.rs`).
 ///
 /// Pre: `overlap > 0`, `n` unit. Post: `|F_t| ≤ μ F_n`, `F_n ≥ 0`; the spring
 /// lies in the tangent plane.

@@ -325,7 +325,7 @@ impl<T: Real> Fluid<T> {
     /// Continues from a saved state.
     pub fn from_state(mut state: FluidState<T>, params: FluidParams) -> Result<Self, ConfigError> {
         // A decoded state's arrays were touched on normal pages: copied once
-        // onto huge pages (memory.rs), ~1 s for the lab column's 1.5 GB.
+        // onto huge pages (memory.rs), 1.7 GB for the lab column.
         state.flags = huge_copy(&state.flags);
         state.populations = huge_copy(&state.populations);
         state.mass = huge_copy(&state.mass);
