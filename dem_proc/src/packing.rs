@@ -9,6 +9,12 @@
 //! than `deposition.rest_speed`, grains of a deposit block whose centre lies
 //! above the block region's top are removed, velocities are zeroed, and the
 //! contact springs are kept with the packing.
+//!
+//! The grains are poured into an open box: a lid (`z_max` among the
+//! domain's walls, which a coupled scene closes for its liquid) is inactive
+//! while they settle, so the dry and the saturated scene of one column,
+//! which differ in nothing else the deposition reads, settle into the same
+//! packing and share one cache file.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -16,14 +22,14 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use schemas::scene::{PackingSpec, Scene};
+use schemas::scene::{Face, PackingSpec, Scene};
 
 use crate::rng::SplitMix64;
 use crate::setup::{walls, DemSetup};
 use crate::world::{Grains, Histories, World};
 
 /// Bump when the deposition algorithm changes, so old caches are not reused.
-const PACKING_VERSION: u32 = 2;
+const PACKING_VERSION: u32 = 3;
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct PackingReport {
@@ -94,8 +100,23 @@ pub fn packing_key(scene: &Scene) -> u64 {
     schemas::stable_hash(key.to_string().as_bytes())
 }
 
+/// The cache file of the scene's packing: named by [`packing_key`] alone,
+/// so scenes that deposit alike (a column dry and saturated) share it.
 pub fn cache_path(scene: &Scene) -> PathBuf {
-    cache_dir().join(format!("{}-{:016x}.bin", scene.spec.scene.name, packing_key(scene)))
+    cache_dir().join(format!("packing-{:016x}.bin", packing_key(scene)))
+}
+
+/// The walls grains settle against: the scene's box walls and closed gates,
+/// the lid (`z_max`) inactive. Indices are those of the run's walls, so the
+/// kept contact springs stay with their walls.
+pub fn deposition_walls(scene: &Scene) -> Vec<crate::world::Wall> {
+    let mut walls = walls(scene, true);
+    for wall in &mut walls {
+        if wall.name == Face::ZMax.name() {
+            wall.active = false;
+        }
+    }
+    walls
 }
 
 fn has_deposit(scene: &Scene) -> bool {
@@ -134,7 +155,7 @@ pub fn build(
     let generated = grains.len();
     let mut world = World::new(
         std::mem::take(&mut grains),
-        walls(scene, true),
+        deposition_walls(scene),
         dep.grain_law,
         dep.wall_law,
         dep.gravity,
