@@ -162,10 +162,17 @@ fn print_dem_lbm(scene: &Scene, warnings: &mut Vec<String>) {
             "forcing      {} gain: a half-covered cell is pulled {half:.3} of the way to the grain per step (tau0 = {tau0:.6})",
             c.forcing_gain.name()
         );
-        if c.forcing_gain == schemas::scene::ForcingGain::CoveredFraction && tau0 < 0.6 {
-            warnings.push(format!(
-                "coupling.forcing_gain = \"covered_fraction\" at tau0 = {tau0:.4}: partly covered cells damp the pore liquid far more than its viscosity (a packing drains ~80x too slowly at tau0 = 0.5007, docs/coupling.md); use \"noble_torczynski\""
-            ));
+        use schemas::scene::ForcingGain;
+        match c.forcing_gain {
+            ForcingGain::CoveredFraction | ForcingGain::CentreInside if tau0 < 0.55 => warnings.push(format!(
+                "coupling.forcing_gain = \"{}\" at tau0 = {tau0:.4}: the grains' surface cells hold the pore liquid far more than its viscosity would (packed-bed permeability 0.007-0.14x Kozeny-Carman at tau0 -> 1/2, docs/coupling.md \"Choosing the forcing gain\"); use \"noble_torczynski\"",
+                c.forcing_gain.name()
+            )),
+            ForcingGain::NobleTorczynski | ForcingGain::NobleTorczynskiEffective if tau0 >= 0.55 => warnings.push(format!(
+                "coupling.forcing_gain = \"{}\" at tau0 = {tau0:.4}: in a viscous liquid its partly covered cells pull too little (array drag 9-48 % low at tau 0.6-1, D/dx 4-8, docs/coupling.md \"Choosing the forcing gain\"); \"centre_inside\" (tau ~0.6) or \"covered_fraction\" (tau ~1) is closer",
+                c.forcing_gain.name()
+            )),
+            _ => {}
         }
         if cells < 3.0 {
             warnings.push(format!(

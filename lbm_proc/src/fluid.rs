@@ -862,6 +862,7 @@ impl<T: Real> Fluid<T> {
             forced_rows: &forcing.rows,
             gain: forcing.gain,
             tau0: self.params.tau,
+            smag: 18.0 * std::f64::consts::SQRT_2 * self.params.smagorinsky * self.params.smagorinsky,
         };
         let out = SharedOut(self.scratch.next.as_mut_ptr(), self.scratch.next.len());
         let mass = SharedOut(self.state.mass.as_mut_ptr(), self.state.mass.len());
@@ -969,6 +970,9 @@ struct Kernel<'a, T> {
     /// The molecular τ0 in f64, for the forcing gain (the f32 `coef.tau0`
     /// would round τ0 − ½ = 6.7e-4 to 4 digits).
     tau0: f64,
+    /// 18√2 C² of the closed-form τ_eff in f64, for the gain rules that
+    /// take a cell's effective τ.
+    smag: f64,
 }
 
 impl<T: Real> Kernel<'_, T> {
@@ -1232,7 +1236,7 @@ impl<T: Real> Kernel<'_, T> {
                     Some(m) => CellMoments::of_lane(m, l),
                     None => CellMoments::of_cell(f, self.src, self.ncells, cell.cell, l),
                 };
-                let force = self.direct_force(&cell, l, &m, accel);
+                let force = self.direct_force(&cell, l, &m, f, accel);
                 // SAFETY: entry k's cell lies in plane z, which only this task writes.
                 unsafe { applied.slice(k, 1)[0] = force };
             } else {
@@ -1260,10 +1264,18 @@ impl<T: Real> Kernel<'_, T> {
     /// split of the momentum balance below, so buoyancy does not depend on
     /// the gain.
     #[inline(always)]
-    fn direct_force(&self, cell: &ForcedCell, l: usize, m: &CellMoments, accel: &mut [[T; LANES]; 4]) -> AppliedForce {
+    fn direct_force(
+        &self,
+        cell: &ForcedCell,
+        l: usize,
+        m: &CellMoments,
+        f: &[[T; LANES]; Q],
+        accel: &mut [[T; LANES]; 4],
+    ) -> AppliedForce {
         let fill = if self.flags[cell.cell] == flags::INTERFACE { self.fill[cell.cell].clamp(0.0, 1.0) } else { 1.0 };
         let w = cell.weight * fill;
-        let b = self.gain.gain(w, self.tau0);
+        let tau = if self.gain.uses_effective_tau() && w < 1.0 { self.effective_tau(f, l) } else { self.tau0 };
+        let b = self.gain.gain(w, tau);
         let j = m.j;
         let rho = 1.0 + m.drho;
         let force: [f64; 3] = std::array::from_fn(|a| b * (2.0 * (rho * cell.target[a] - j[a]) - rho * self.accel[a]));
@@ -1284,6 +1296,37 @@ impl<T: Real> Kernel<'_, T> {
         // forcing reaction is the rest (coupling.rs, step 6).
         let inflow = std::array::from_fn(|a| w * (j[a] - j_left[a]) - (1.0 - w) * force[a]);
         AppliedForce { cell: cell.cell, force, liquid: w * rho, inflow }
+    }
+
+    /// τ_eff of lane `l` of `f` (pulled populations, stored as f − w) under
+    /// the uniform body force alone, in f64: the Smagorinsky closure of
+    /// [`collide`] evaluated before the direct force is added (the gain that
+    /// sets the force cannot wait for the strain the force produces).
+    #[inline(always)]
+    fn effective_tau(&self, f: &[[T; LANES]; Q], l: usize) -> f64 {
+        let (mut drho, mut j, mut p) = (0.0, [0.0; 3], [[0.0; 3]; 3]);
+        for i in 0..Q {
+            let g = f[i][l].to_f64();
+            drho += g;
+            for a in 0..3 {
+                j[a] += E[i][a] as f64 * g;
+                for b in 0..3 {
+                    p[a][b] += (E[i][a] * E[i][b]) as f64 * g;
+                }
+            }
+        }
+        let rho = 1.0 + drho;
+        let a = self.accel;
+        let u: [f64; 3] = std::array::from_fn(|k| j[k] / rho + 0.5 * a[k]);
+        let mut q = 0.0;
+        for x in 0..3 {
+            for y in 0..3 {
+                let diagonal = if x == y { drho / 3.0 } else { 0.0 };
+                let neq = p[x][y] - diagonal - rho * u[x] * u[y] + 0.5 * rho * (a[x] * u[y] + u[x] * a[y]);
+                q += neq * neq;
+            }
+        }
+        0.5 * (self.tau0 + (self.tau0 * self.tau0 + self.smag * q.sqrt() / rho).sqrt())
     }
 
     /// The free-surface part of the pull for interface cell (x, y, z), lane

@@ -12,7 +12,9 @@
 //! * [`setup`]: a checked scene (SI) on the lattice: box, units, gates, liquid;
 //! * [`memory`]: the lattice arrays on huge pages (fewer TLB misses);
 //! * [`real`]: the population float type (f32 default, f64 for comparison);
-//! * [`bench`]: bulk throughput and memory bandwidth measurement.
+//! * [`bench`]: bulk throughput and memory bandwidth measurement;
+//! * [`validation`]: the coupling's validation cases (sphere arrays, packed
+//!   beds) against published drag and permeability.
 //!
 //! Everything inside is in lattice units (Δx = Δt = ρ0 = 1). See `docs/lbm.md`.
 
@@ -26,6 +28,7 @@ pub mod real;
 pub mod run;
 pub mod setup;
 pub mod units;
+pub mod validation;
 pub mod watchdog;
 
 pub use coupling::{Coupling, CouplingError, Sphere, SphereForce};

@@ -130,22 +130,24 @@ fn report(name: &str, d: f64, l: usize, r: &Drag) {
     );
 }
 
-/// Stokes drag at D/Δx = 4 and 8, each gain rule: the error bounds hold the
-/// measured errors (covered fraction −7.2 % and −2.5 %; Noble–Torczynski,
-/// whose partly covered cells pull less at τ = 1, −18.1 % and −8.2 %) with
-/// a margin, and the error must shrink with D/Δx.
+/// Stokes drag of one sphere (φ = 0.008) at τ = 1, D/Δx = 4 and 8, for two
+/// gain rules: the measured errors (covered fraction −7.2 % and −2.5 %;
+/// Noble–Torczynski, whose partly covered cells pull less at τ = 1, −18.1 %
+/// and −8.2 %; fixed and moving alike to 0.1 %) ± 1 percentage point. The
+/// cases are deterministic: the margin is for a deliberate change, which
+/// must then be measured again (docs/coupling.md "Choosing the forcing gain"
+/// tabulates every rule at τ = 0.6 and 1 and in the paper's water).
 fn stokes_drag_within_bounds(moving: bool) {
-    for (gain, coarse_bound, fine_bound) in
-        [(ForcingGain::CoveredFraction, 0.10, 0.04), (ForcingGain::NobleTorczynski, 0.22, 0.11)]
+    for (gain, coarse_measured, fine_measured) in
+        [(ForcingGain::CoveredFraction, -0.0720, -0.0248), (ForcingGain::NobleTorczynski, -0.1810, -0.0823)]
     {
         let name = format!("{} {}", if moving { "moving" } else { "fixed" }, gain.name());
         let coarse = drag(4.0, 16, moving, 800, 200, gain);
         report(&name, 4.0, 16, &coarse);
         let fine = drag(8.0, 32, moving, 1600, 400, gain);
         report(&name, 8.0, 32, &fine);
-        assert!(coarse.error.abs() < coarse_bound, "{name}, D/dx = 4: {:+.3}", coarse.error);
-        assert!(fine.error.abs() < fine_bound, "{name}, D/dx = 8: {:+.3}", fine.error);
-        assert!(fine.error.abs() < coarse.error.abs(), "{name}: the error must shrink with D/dx");
+        assert!((coarse.error - coarse_measured).abs() < 0.01, "{name}, D/dx = 4: {:+.4}", coarse.error);
+        assert!((fine.error - fine_measured).abs() < 0.01, "{name}, D/dx = 8: {:+.4}", fine.error);
     }
 }
 
@@ -486,58 +488,6 @@ fn bad_spheres_are_typed_errors() {
     assert!(fluid.direct_forcing().is_empty(), "a refused list leaves no forcing behind");
 }
 
-/// Drag in a dense simple cubic array of touching spheres (φ = π/6 = 0.5236),
-/// the pore scale of a packed bed: 2 × 2 × 2 fixed spheres of diameter `d`
-/// cells in a periodic box of 2d, τ = 1, f64, driven by a uniform body force
-/// to steady Stokes flow. Returns K = F/(6πμ a U) with U the superficial
-/// velocity (mean over every cell, grain interiors held at 0 included) and
-/// F the drag per sphere (the body force on the whole box / 8).
-fn touching_array_drag(d: usize, steps: usize) -> f64 {
-    let l = 2 * d;
-    let tau = 1.0;
-    let nu = (tau - 0.5) / 3.0;
-    let a = 1e-6;
-    let params = FluidParams { smagorinsky: 0.0, acceleration: [a, 0.0, 0.0], ..FluidParams::new(tau) };
-    let mut fluid = Fluid::<f64>::new([l; 3], [Faces::Periodic; 3], params).expect("valid parameters");
-    let mut coupling =
-        Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin").with_gain(ForcingGain::CoveredFraction);
-    let spheres: Vec<Sphere> = (0..8)
-        .map(|s| Sphere {
-            position: [0, 1, 2].map(|k| (((s >> k) & 1) * d) as f64 + 0.5 * d as f64),
-            velocity: [0.0; 3],
-            angular_velocity: [0.0; 3],
-            radius: 0.5 * d as f64,
-        })
-        .collect();
-    for _ in 0..steps {
-        coupling.step(&mut fluid, &spheres).expect("valid spheres");
-    }
-    let mass = fluid.ncells() as f64;
-    let u = momentum(&fluid)[0] / mass;
-    let force = a * mass / 8.0;
-    force / (6.0 * PI * nu * 0.5 * d as f64 * u)
-}
-
-/// The pore scale the paper's column runs at (D/Δx = 4.17): the drag of a
-/// packed array against Zick & Homsy 1982 (simple cubic, touching spheres,
-/// K = 42.14). The smooth covered fraction opens the throats where spheres
-/// touch, so the drag is low: measured −50.6 % at D/Δx = 4 and −23.2 % at
-/// 8 (a packed bed too permeable by ~2× at the paper's resolution). The
-/// bounds hold those numbers with 5 % margin and the error must shrink.
-#[test]
-fn touching_simple_cubic_array_drag_against_zick_homsy() {
-    let zick_homsy = 42.14;
-    let mut errors = Vec::new();
-    for (d, steps) in [(4, 3000), (8, 8000)] {
-        let k = touching_array_drag(d, steps);
-        let err = k / zick_homsy - 1.0;
-        println!("touching SC array, D/dx = {d}: K = {k:.2} vs Zick & Homsy {zick_homsy} ({:+.1} %)", 100.0 * err);
-        errors.push(err);
-    }
-    assert!(errors[0].abs() < 0.55 && errors[1].abs() < 0.28, "{errors:?}");
-    assert!(errors[1].abs() < errors[0].abs(), "the error must shrink with D/dx: {errors:?}");
-}
-
 /// A sphere spinning at ω in liquid at rest feels the torque −8πμR³ω
 /// (Stokes), here in a periodic box of 4D (τ = 1, f64, D/Δx = 8), Re_ω =
 /// ωR²/ν = 0.1. Both the forcing reaction and the surface torque (what a
@@ -577,162 +527,6 @@ fn spinning_sphere_feels_the_stokes_torque() {
     assert!(torque < 0.0 && surface < 0.0, "the torque must oppose the spin");
     assert!((torque / stokes - 1.0).abs() < 0.15, "torque {torque:e} vs Stokes {stokes:e}");
     assert!((surface / torque - 1.0).abs() < 0.01, "steady spin: surface torque {surface:e} vs reaction {torque:e}");
-}
-
-/// A random packing of `n` spheres of diameter `d` (cells) in a periodic
-/// cube of side `l` cells: random centres (fixed seed), then pairwise
-/// overlaps pushed apart along the minimum-image line until none exceeds
-/// `tolerance` d. Returns the centres.
-fn random_periodic_packing(n: usize, d: f64, l: f64, seed: u64, tolerance: f64) -> Vec<[f64; 3]> {
-    let mut state = seed;
-    let mut uniform = || {
-        // SplitMix64.
-        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let mut p: Vec<[f64; 3]> = (0..n).map(|_| [uniform() * l, uniform() * l, uniform() * l]).collect();
-    let image = |x: f64| x - l * (x / l).round();
-    for _ in 0..20_000 {
-        let mut worst: f64 = 0.0;
-        for i in 0..n {
-            for j in i + 1..n {
-                let dv: [f64; 3] = std::array::from_fn(|a| image(p[j][a] - p[i][a]));
-                let dist = (dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2]).sqrt().max(1e-9);
-                let overlap = d - dist;
-                if overlap > 0.0 {
-                    worst = worst.max(overlap / d);
-                    for a in 0..3 {
-                        let push = 0.5 * overlap * dv[a] / dist;
-                        p[i][a] = (p[i][a] - push).rem_euclid(l);
-                        p[j][a] = (p[j][a] + push).rem_euclid(l);
-                    }
-                }
-            }
-        }
-        if worst < tolerance {
-            return p;
-        }
-    }
-    panic!("packing of {n} spheres at D = {d} in L = {l} did not relax");
-}
-
-/// The fixed random packing of the permeability tests: 64 grains of D/dx =
-/// `d` at porosity ~0.42 in a periodic cube; (centres, box cells, porosity).
-fn random_packing(d: f64) -> (Vec<[f64; 3]>, usize, f64) {
-    let spheres_n = 64;
-    let solid = 0.58;
-    let l = (spheres_n as f64 * PI * d.powi(3) / 6.0 / solid).cbrt().round();
-    let centres = random_periodic_packing(spheres_n, d, l, 7, 2e-3);
-    let porosity = 1.0 - spheres_n as f64 * PI * d.powi(3) / 6.0 / l.powi(3);
-    (centres, l as usize, porosity)
-}
-
-/// Steady superficial velocity (lattice units; mean over every cell, grain
-/// interiors included) of liquid driven along x by body force `g` through
-/// the fixed packing of [`random_packing`]: steady when it changes by less
-/// than 1e-4 of itself over 500 steps, or after `max_steps`.
-fn packing_flux(d: f64, params: FluidParams, gain: ForcingGain, max_steps: usize) -> f64 {
-    let (centres, n, _) = random_packing(d);
-    let mut fluid = Fluid::<f64>::new([n; 3], [Faces::Periodic; 3], params).expect("valid parameters");
-    let mut coupling = Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin").with_gain(gain);
-    let spheres: Vec<Sphere> = centres
-        .iter()
-        .map(|&position| Sphere { position, velocity: [0.0; 3], angular_velocity: [0.0; 3], radius: 0.5 * d })
-        .collect();
-    let cells = (n * n * n) as f64;
-    let (mut last, mut u) = (0.0, 0.0);
-    for step in 1..=max_steps {
-        coupling.step(&mut fluid, &spheres).expect("valid spheres");
-        if step % 500 == 0 {
-            u = momentum(&fluid)[0] / cells;
-            if (u - last).abs() < 1e-4 * u.abs() {
-                break;
-            }
-            last = u;
-        }
-    }
-    u
-}
-
-/// Darcy permeability (in D²) of the fixed random packing with D/dx = `d`
-/// and the Kozeny–Carman value n³/(180 (1 − n)²) for its actual porosity: a
-/// body force g drives the liquid through the fixed grains (τ = 1, Stokes
-/// flow, covered-fraction gain) until steady, K = μU/(ρg).
-fn packing_permeability(d: f64) -> (f64, f64, f64) {
-    let (_, _, porosity) = random_packing(d);
-    let g = 1e-6;
-    let params = FluidParams { acceleration: [g, 0.0, 0.0], smagorinsky: 0.0, ..FluidParams::new(1.0) };
-    let u = packing_flux(d, params, ForcingGain::CoveredFraction, 40_000);
-    let mu = 1.0 / 6.0; // ν at τ = 1, ρ = 1
-    let k = mu * u / g / (d * d);
-    let kozeny_carman = porosity.powi(3) / (180.0 * (1.0 - porosity).powi(2));
-    (k, kozeny_carman, porosity)
-}
-
-/// Ergun's superficial velocity q (lattice units) through a bed of porosity
-/// n and grain diameter d under a body force g per unit mass (ρ = 1):
-/// g = 150 ν (1 − n)² q/(n³ d²) + 1.75 (1 − n) q²/(n³ d).
-fn ergun_flux(g: f64, nu: f64, n: f64, d: f64) -> f64 {
-    let a = 150.0 * nu * (1.0 - n).powi(2) / (n.powi(3) * d * d);
-    let b = 1.75 * (1.0 - n) / (n.powi(3) * d);
-    (-a + (a * a + 4.0 * b * g).sqrt()) / (2.0 * b)
-}
-
-/// The regime of the paper's saturated column: water at Δx = 6e-4 m, Δt =
-/// 8e-5 s (τ0 = 0.500667, Smagorinsky 0.16) draining through its grains
-/// (D/Δx = 4.17) under gravity, the unit hydraulic gradient of a column
-/// that loses its water at the face. Ergun's correlation (±~30 % for random
-/// sphere beds) gives q = 3.2 cm/s at Re_p ≈ 80, mostly inertial drag.
-/// Measured: Noble–Torczynski gain 1.21× Ergun; the covered-fraction gain
-/// 0.014× (0.4 mm/s: its partly covered cells damp the pore liquid every
-/// step whatever the viscosity, and held the paper's column still,
-/// docs/coupling.md). The bounds: within 35 % of Ergun for the default,
-/// under a tenth of it for the other.
-#[test]
-fn random_packing_drains_under_gravity_at_ergun_flux_at_the_paper_tau() {
-    let units = Units::new(6e-4, 8e-5, 1000.0).expect("valid units");
-    let tau = units.tau_from_viscosity(1e-6).expect("valid viscosity");
-    let g = units.acceleration_to_lattice(9.81);
-    let d = 2.5e-3 / 6e-4;
-    let (_, _, porosity) = random_packing(d);
-    let ergun = ergun_flux(g, (tau - 0.5) / 3.0, porosity, d);
-    let params = FluidParams { acceleration: [g, 0.0, 0.0], smagorinsky: 0.16, ..FluidParams::new(tau) };
-    let mut ratios = Vec::new();
-    for gain in [ForcingGain::NobleTorczynski, ForcingGain::CoveredFraction] {
-        let q = packing_flux(d, params, gain, 4000);
-        println!(
-            "drainage at tau0 = {tau:.6}, D/dx = {d:.2}, porosity {porosity:.4}, {}: q = {:.2} mm/s, Ergun {:.2} mm/s, ratio {:.3}",
-            gain.name(),
-            1e3 * units.velocity_to_si(q),
-            1e3 * units.velocity_to_si(ergun),
-            q / ergun
-        );
-        ratios.push(q / ergun);
-    }
-    assert!((ratios[0] - 1.0).abs() < 0.35, "Noble-Torczynski: q / Ergun = {}", ratios[0]);
-    assert!(ratios[1] < 0.1, "covered fraction: q / Ergun = {}", ratios[1]);
-}
-
-#[test]
-fn random_packing_permeability_against_kozeny_carman() {
-    // 64 grains at porosity ~0.42 (the paper's), periodic. The paper's
-    // resolution D/dx = 4.17 and twice it. The simple cubic array above
-    // says packed beds are too permeable at low D/dx; here the error must
-    // be smaller at the finer lattice, and within a factor two there.
-    let mut results = Vec::new();
-    for d in [4.17, 8.33] {
-        let (k, kc, n) = packing_permeability(d);
-        println!(
-            "random packing, D/dx = {d}: porosity {n:.4}, K = {k:.3e} D^2, Kozeny-Carman {kc:.3e} D^2, ratio {:.3}",
-            k / kc
-        );
-        results.push(k / kc);
-    }
-    assert!((results[1] - 1.0).abs() < (results[0] - 1.0).abs(), "the error must shrink with D/dx: {results:?}");
-    assert!(results[1] > 0.5 && results[1] < 2.0, "D/dx = 8.33: K / K_KC = {}", results[1]);
 }
 
 /// The row-by-row covering (`Coupling::apply`) against covering every cell
@@ -810,4 +604,48 @@ fn row_covering_matches_covering_cell_by_cell() {
             assert_eq!(f.target, target.map(|t| t / total), "{threads} threads: target of cell {cell}");
         }
     }
+}
+
+/// The two hydrostatics forms of a submerged scene (docs/coupling.md,
+/// "Submerged scenes"): a sphere moving down at constant velocity in a
+/// closed tank gets the same load whether the liquid's weight is on the
+/// lattice (gravity g, hydrostatic initial density; the surface force
+/// carries the buoyancy) or left off it (no gravity; buoyancy ρ0 V g added,
+/// V = 4πR³/3, as `GrainForcing::with_added_buoyancy` does). The head is
+/// small (3g·48 = 1.4e-3 of the density), so the forms must agree to 1e-3
+/// of the drag; measured 2e-4.
+#[test]
+fn added_buoyancy_equals_the_lattice_hydrostatics_for_a_moving_sphere() {
+    let dims = [24, 24, 48];
+    let (g, r, u) = (1e-5, 3.0, -2e-3);
+    let surface_force = |gravity: f64| {
+        let params = FluidParams { acceleration: [0.0, 0.0, -gravity], smagorinsky: 0.0, ..FluidParams::new(1.5) };
+        let mut fluid = Fluid::<f64>::new(dims, [Faces::Walls; 3], params).expect("valid parameters");
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    let rho = 1.0 - 3.0 * gravity * (k as f64 + 0.5 - 0.5 * dims[2] as f64);
+                    fluid.set_equilibrium([i, j, k], rho, [0.0; 3]).expect("in box");
+                }
+            }
+        }
+        let mut coupling =
+            Coupling::new(lattice_units(), [0.0; 3]).expect("finite origin").with_gain(ForcingGain::CoveredFraction);
+        let mut z = 36.0;
+        let mut f = 0.0;
+        for _ in 0..3000 {
+            let sphere =
+                Sphere { position: [12.1, 11.9, z], velocity: [0.0, 0.0, u], angular_velocity: [0.0; 3], radius: r };
+            f = coupling.step(&mut fluid, &[sphere]).expect("valid sphere")[0].surface_force[2];
+            z += u;
+        }
+        f
+    };
+    let on_lattice = surface_force(g);
+    let added = surface_force(0.0) + g * 4.0 / 3.0 * PI * r.powi(3);
+    let buoyancy = g * 4.0 / 3.0 * PI * r.powi(3);
+    let drag = on_lattice - buoyancy;
+    println!("surface force: weight on the lattice {on_lattice:.6e}, off it + buoyancy {added:.6e} (drag {drag:.4e})");
+    assert!(drag > 10.0 * buoyancy, "the case must be drag-dominated to test the drag's equality");
+    assert!((added - on_lattice).abs() < 1e-3 * drag, "{added:e} vs {on_lattice:e}");
 }

@@ -216,6 +216,38 @@ pub struct LbmSpec {
     /// a water dam-break front at the paper's resolution reaches Mach ~0.35.
     #[serde(default = "default_mach_limit")]
     pub mach_limit: f64,
+    /// Where the liquid's hydrostatic pressure lives: `lattice` (default)
+    /// or `buoyancy` (see [`Hydrostatics`]).
+    #[serde(default)]
+    pub hydrostatics: Hydrostatics,
+}
+
+/// How gravity acts on the liquid of a coupled scene.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Hydrostatics {
+    /// The liquid feels gravity: its hydrostatic pressure is on the lattice,
+    /// and the grains' buoyancy comes from it with the rest of the surface
+    /// force. Needed wherever the liquid has a free surface. The head
+    /// ρ_L g H must stay small in lattice units (its density varies by
+    /// 3 g H Δt²/Δx), which can force a small Δt in a tall tank.
+    #[default]
+    Lattice,
+    /// The liquid feels no gravity, so the lattice carries only the pressure
+    /// beyond the hydrostatic (p + ρ_L g·x), and each grain's load gets its
+    /// buoyancy −ρ_L V g added (V = πD³/6). The same physics as `lattice`
+    /// for liquid that fills a closed box (checked at load), with no
+    /// hydrostatic density gradient to limit Δt.
+    Buoyancy,
+}
+
+impl Hydrostatics {
+    pub fn name(self) -> &'static str {
+        match self {
+            Hydrostatics::Lattice => "lattice",
+            Hydrostatics::Buoyancy => "buoyancy",
+        }
+    }
 }
 
 fn default_smagorinsky() -> f64 {
@@ -534,8 +566,9 @@ pub struct CouplingSpec {
     #[serde(default)]
     pub schedule: Schedule,
     /// How strongly a cell that a grain covers only partly is forced toward
-    /// the grain's velocity: `noble_torczynski` (default) or
-    /// `covered_fraction` (see [`ForcingGain`]).
+    /// the grain's velocity: `noble_torczynski` (default),
+    /// `noble_torczynski_effective`, `covered_fraction` or `centre_inside`
+    /// (see [`ForcingGain`]).
     #[serde(default)]
     pub forcing_gain: ForcingGain,
 }
@@ -548,7 +581,11 @@ impl Default for CouplingSpec {
 
 /// The gain b of the direct forcing F_IB = b [2(ρU − Σ f e) − ρa] in a cell
 /// whose covered fraction is w (weight × fill). A fully covered cell
-/// (w = 1) has b = 1 either way: its liquid moves with the grain.
+/// (w = 1) has b = 1 under every rule: its liquid moves with the grain.
+/// The rules differ in how a grain's surface cells (0 < w < 1) are pulled;
+/// their errors against sphere-array drag, packed-bed permeability and
+/// Ergun's drag are measured in docs/coupling.md, "Choosing the forcing
+/// gain" (`cargo run --release -p lbm_proc --example coupling_study`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ForcingGain {
@@ -557,36 +594,70 @@ pub enum ForcingGain {
     /// cell's liquid is pulled to the grain's velocity at the rate viscosity
     /// would pull it: as τ0 → ½ (water at the paper's Δx, Δt: τ0 = 0.50067)
     /// only the fully covered cells are forced, and the pore liquid between
-    /// grains flows as freely as its inertia allows. At τ = 1 the grain's
-    /// hydrodynamic radius is 0.23–0.26 cells under R (Stokes drag 8 % low
-    /// at D/Δx = 8, 18 % at 4); at the paper's τ0 a random packing drains
-    /// under gravity at 1.21× Ergun's flux (lbm_proc/tests/coupling.rs).
+    /// grains flows as freely as its inertia allows.
     #[default]
     NobleTorczynski,
+    /// Noble & Torczynski's weighting with each cell's effective τ, eddy
+    /// viscosity included: τ_eff from the Smagorinsky closure (Eq. 4) on the
+    /// cell's populations before the forcing (uniform body force only), so
+    /// that a grain surface in a sheared pore is pulled as strongly as the
+    /// pore's effective viscosity would pull it. Equal to
+    /// `noble_torczynski` without Smagorinsky.
+    NobleTorczynskiEffective,
     /// b = w: every covered cell is pulled the covered fraction of the way
-    /// each step, whatever the viscosity. Best in Stokes flow at τ = 1
-    /// (drag 2.5 % low at D/Δx = 8, 7 % at 4), but at τ0 → ½ it is a drag far
-    /// stronger than viscous: a packing at the paper's τ0 drains ~80× slower
-    /// than Ergun's flux, which locks the pore water to the grains.
+    /// each step, whatever the viscosity (the immersed-boundary weighting
+    /// of Feng & Michaelides 2005 and of HYBIRD's Eq. 5 with a solid
+    /// fraction). At τ0 → ½ it is a drag far stronger than the viscous one
+    /// on the pore liquid.
     CoveredFraction,
+    /// b = 1 where the cell centre lies inside the grain (w ≥ ½ under the
+    /// coupling's linear covering ramp), else 0: Eq. 5 applied to "the
+    /// fluid cells within each particle", a staircase sphere of the right
+    /// volume, independent of τ.
+    CentreInside,
 }
 
 impl ForcingGain {
+    /// Every rule, in the order docs/coupling.md lists them.
+    pub const ALL: [ForcingGain; 4] = [
+        ForcingGain::NobleTorczynski,
+        ForcingGain::NobleTorczynskiEffective,
+        ForcingGain::CoveredFraction,
+        ForcingGain::CentreInside,
+    ];
+
     pub fn name(self) -> &'static str {
         match self {
             ForcingGain::NobleTorczynski => "noble_torczynski",
+            ForcingGain::NobleTorczynskiEffective => "noble_torczynski_effective",
             ForcingGain::CoveredFraction => "covered_fraction",
+            ForcingGain::CentreInside => "centre_inside",
         }
     }
 
-    /// The gain for covered fraction `w` in [0, 1] at molecular relaxation time `tau0` > ½.
+    /// Whether [`ForcingGain::gain`] takes the cell's effective τ (with the
+    /// eddy viscosity) rather than the molecular τ0.
+    pub fn uses_effective_tau(self) -> bool {
+        self == ForcingGain::NobleTorczynskiEffective
+    }
+
+    /// The gain for covered fraction `w` in [0, 1] at relaxation time
+    /// `tau` > ½ (the molecular τ0, or the cell's effective τ where
+    /// [`ForcingGain::uses_effective_tau`]).
     #[inline]
-    pub fn gain(self, w: f64, tau0: f64) -> f64 {
+    pub fn gain(self, w: f64, tau: f64) -> f64 {
         match self {
             ForcingGain::CoveredFraction => w,
-            ForcingGain::NobleTorczynski if w >= 1.0 => 1.0,
-            ForcingGain::NobleTorczynski => {
-                let e = tau0 - 0.5;
+            ForcingGain::CentreInside => {
+                if w >= 0.5 {
+                    1.0
+                } else {
+                    0.0
+                }
+            }
+            ForcingGain::NobleTorczynski | ForcingGain::NobleTorczynskiEffective if w >= 1.0 => 1.0,
+            ForcingGain::NobleTorczynski | ForcingGain::NobleTorczynskiEffective => {
+                let e = tau - 0.5;
                 w * e / ((1.0 - w) + e)
             }
         }
@@ -971,6 +1042,19 @@ impl Scene {
             v.at_least("lbm.smagorinsky", lbm.smagorinsky, 0.0);
             v.open_range("lbm.trt_magic", lbm.trt_magic, 0.0, 10.0);
             v.open_range("lbm.mach_limit", lbm.mach_limit, 0.0, 1.0);
+            if lbm.hydrostatics == Hydrostatics::Buoyancy {
+                let fills = spec
+                    .fluids
+                    .iter()
+                    .any(|f| (0..3).all(|a| f.region.min[a] <= d.min[a] && f.region.max[a] >= d.max[a]));
+                let closed = Face::ALL.iter().all(|face| d.walls.contains(face));
+                if !fills || !closed || !spec.gates.is_empty() {
+                    v.fail(
+                        "lbm.hydrostatics",
+                        "\"buoyancy\" leaves the liquid's weight off the lattice, which holds only where liquid fills a closed box: give one fluid block the whole domain as its region, list all six faces in domain.walls and remove the gates, or use \"lattice\"".into(),
+                    );
+                }
+            }
             if lbm.spacing > 0.0 && lbm.time_step > 0.0 {
                 for a in 0..3 {
                     let cells = (d.max[a] - d.min[a]) / lbm.spacing;
