@@ -13,6 +13,9 @@ use crate::real::Real;
 #[derive(Debug, Clone)]
 pub struct GrainForcing {
     coupling: Coupling,
+    /// Added to each grain's load per unit grain volume, N/m³ (the
+    /// buoyancy −ρ_L g when the lattice leaves the liquid's weight out).
+    added_buoyancy: [f64; 3],
     spheres: Vec<Sphere>,
     /// Wall seconds in covering, forcing bookkeeping and force sums.
     pub coupling_seconds: f64,
@@ -20,7 +23,14 @@ pub struct GrainForcing {
 
 impl GrainForcing {
     pub fn new(coupling: Coupling) -> Self {
-        GrainForcing { coupling, spheres: Vec::new(), coupling_seconds: 0.0 }
+        GrainForcing { coupling, added_buoyancy: [0.0; 3], spheres: Vec::new(), coupling_seconds: 0.0 }
+    }
+
+    /// Adds `per_volume` × πD³/6 (N/m³ × m³) to every grain's load: the
+    /// buoyancy of `lbm.hydrostatics = "buoyancy"` ([`crate::setup::LbmSetup::grain_buoyancy`]).
+    pub fn with_added_buoyancy(mut self, per_volume: [f64; 3]) -> Self {
+        self.added_buoyancy = per_volume;
+        self
     }
 
     /// One fluid step with `states` forced in; `loads` gets one entry per
@@ -55,10 +65,14 @@ impl GrainForcing {
         let collected = std::time::Instant::now();
         let forces = self.coupling.collect(fluid)?;
         loads.clear();
+        let added = self.added_buoyancy;
         loads.extend(states.iter().zip(forces).map(|(s, f)| HydroLoad {
             id: s.id,
             _pad: 0,
-            force: f.surface_force,
+            force: {
+                let volume = 4.0 / 3.0 * std::f64::consts::PI * s.radius.powi(3);
+                std::array::from_fn(|a| f.surface_force[a] + added[a] * volume)
+            },
             torque: f.surface_torque,
             liquid_mass: f.liquid_mass,
         }));

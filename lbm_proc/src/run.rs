@@ -214,11 +214,14 @@ pub fn run(
     let mut failure = None;
 
     let mut forcing = match peer {
-        Some(_) => Some(GrainForcing::new(
-            Coupling::new(setup.units, setup.origin)
-                .map_err(|source| RunError::Coupling { exchange: 0, source })?
-                .with_gain(scene.spec.coupling.forcing_gain),
-        )),
+        Some(_) => Some(
+            GrainForcing::new(
+                Coupling::new(setup.units, setup.origin)
+                    .map_err(|source| RunError::Coupling { exchange: 0, source })?
+                    .with_gain(scene.spec.coupling.forcing_gain),
+            )
+            .with_added_buoyancy(setup.grain_buoyancy),
+        ),
         None => None,
     };
     let (mut states, mut loads) = (Vec::new(), Vec::new());

@@ -8,7 +8,7 @@
 //! cells). A gate is a slab of wall cells one cell thick on the closed side
 //! of its plane, removed at its release time.
 
-use schemas::scene::{Collision as SceneCollision, Scene};
+use schemas::scene::{Collision as SceneCollision, Hydrostatics, Scene};
 
 use crate::fluid::{Collision, Faces, FluidParams};
 use crate::units::Units;
@@ -50,6 +50,10 @@ pub struct LbmSetup {
     /// Liquid density, kg/m³, and kinematic viscosity, m²/s.
     pub density: f64,
     pub kinematic_viscosity: f64,
+    /// −ρ_L g, N/m³: the buoyancy per unit grain volume added to every
+    /// grain's load when the lattice leaves the liquid's weight out
+    /// (`lbm.hydrostatics = "buoyancy"`); zero otherwise.
+    pub grain_buoyancy: [f64; 3],
     /// Lines for the log: rounding of the box, τ.
     pub notes: Vec<String>,
 }
@@ -98,8 +102,21 @@ impl LbmSetup {
         let params = FluidParams {
             collision,
             smagorinsky: lbm.smagorinsky,
-            acceleration: d.gravity.map(|g| units.acceleration_to_lattice(g)),
+            acceleration: match lbm.hydrostatics {
+                Hydrostatics::Lattice => d.gravity.map(|g| units.acceleration_to_lattice(g)),
+                Hydrostatics::Buoyancy => [0.0; 3],
+            },
             ..FluidParams::new(tau)
+        };
+        let grain_buoyancy = match lbm.hydrostatics {
+            Hydrostatics::Lattice => [0.0; 3],
+            Hydrostatics::Buoyancy => {
+                notes.push(format!(
+                    "hydrostatics = buoyancy: the liquid feels no gravity; each grain's load gets -rho_L V g = {:.4e} N per cm^3 of grain",
+                    first.density * scene.gravity_magnitude() * 1e-6
+                ));
+                d.gravity.map(|g| -first.density * g)
+            }
         };
         notes.push(format!(
             "lattice {} x {} x {} cells of {dx} m, dt {} s; tau0 = {tau:.6}, {:?}, Smagorinsky C = {}",
@@ -115,6 +132,7 @@ impl LbmSetup {
             gates: Vec::new(),
             density: first.density,
             kinematic_viscosity: nu,
+            grain_buoyancy,
             notes,
         };
         for (g, gate) in spec.gates.iter().enumerate() {
