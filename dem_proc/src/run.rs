@@ -9,7 +9,7 @@ use std::time::Instant;
 use foxglove::schemas::{Color, Log, PointCloud, Pose, SceneEntity, SceneUpdate, SpherePrimitive, Vector3};
 use serde::{Deserialize, Serialize};
 
-use schemas::measures::{coordination_shares, deposit_profile, front_position, FrontSample};
+use schemas::measures::{coordination_shares, deposit_profile, front_position, pile_edge, FrontSample};
 use schemas::metrics::{CouplingTimings, DemMetrics};
 use schemas::process::RunOptions;
 use schemas::record::{
@@ -271,7 +271,12 @@ pub fn run(
     let total_steps = (out.end_time / dt).ceil() as u64;
     let last_release = world.walls.iter().map(|w| w.release_time).filter(|t| t.is_finite()).fold(0.0, f64::max);
 
-    let mut front = Fronts::default();
+    let mut front = Fronts {
+        solid_fraction: if rep.porosity_bulk.is_finite() { 1.0 - rep.porosity_bulk } else { 0.6 },
+        width: scene.spec.domain.max[1] - scene.spec.domain.min[1],
+        bin: setup.max_diameter,
+        ..Fronts::default()
+    };
     let started = Instant::now();
     let mut last_frame = (Instant::now(), 0u64);
     let mut last_progress = Instant::now();
@@ -420,6 +425,8 @@ pub fn run(
         t_ref,
         front: front.all,
         runout: (final_front - x0 - l0) / l0,
+        runout_pile: front.pile.last().map(|f| f.x_norm),
+        front_pile: front.pile,
         front_connected: front.connected,
         runout_connected: final_connected,
         deposit,
@@ -515,6 +522,13 @@ fn check_blow_up(world: &World, setup: &DemSetup) -> Result<(), RunError> {
 struct Fronts {
     all: Vec<FrontSample>,
     connected: Vec<FrontSample>,
+    pile: Vec<FrontSample>,
+    /// 1 − n0 of the initial packing (0.6 where it has none), the
+    /// flume's width and the bin of the pile's edge, m.
+    solid_fraction: f64,
+    width: f64,
+    bin: f64,
+    bins: Vec<f64>,
 }
 
 fn record_frame(
@@ -541,8 +555,19 @@ fn record_frame(
     let fc = front_position(touching.map(|p| (g.pos[p][0] + g.radius[p], g.mass[p])), fraction, &mut frames.scratch);
     let sample = FrontSample { t, t_norm: t / t_ref, x: fx, x_norm: (fx - x0 - l0) / l0 };
     let connected = FrontSample { t, t_norm: t / t_ref, x: fc, x_norm: (fc - x0 - l0) / l0 };
+    let volume = |p: usize| 4.0 / 3.0 * std::f64::consts::PI * g.radius[p].powi(3);
+    let pile_x = pile_edge(
+        (0..g.len()).map(|p| (g.pos[p][0], volume(p))),
+        x0,
+        front.bin,
+        front.width,
+        front.solid_fraction,
+        front.bin,
+        &mut front.bins,
+    );
     front.all.push(sample);
     front.connected.push(connected);
+    front.pile.push(FrontSample { t, t_norm: t / t_ref, x: pile_x, x_norm: (pile_x - x0 - l0) / l0 });
     let max_speed = world.max_speed();
 
     if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {

@@ -352,6 +352,8 @@ pub fn run(
         runout: f64::NAN,
         front_connected: Vec::new(),
         runout_connected: None,
+        front_pile: Vec::new(),
+        runout_pile: None,
         deposit: Vec::new(),
         porosity_initial: f64::NAN,
         liquid_front: std::mem::take(&mut frames.front),

@@ -373,6 +373,8 @@ fn run_on_pool(
         runout: if s.set.is_empty() { f64::NAN } else { runout },
         front_connected: Vec::new(),
         runout_connected: None,
+        front_pile: Vec::new(),
+        runout_pile: None,
         deposit: if s.set.is_empty() { Vec::new() } else { deposit },
         porosity_initial,
         liquid_front: frames.liquid_front.clone(),

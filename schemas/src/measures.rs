@@ -58,6 +58,53 @@ pub fn deposit_profile(items: impl Iterator<Item = (f64, f64)>, x0: f64, bin: f6
     heights.iter().enumerate().map(|(i, &h)| [x0 + (i as f64 + 0.5) * bin, h]).collect()
 }
 
+/// Where the pile ends: scanning bins of width `bin` from `x0` (the back
+/// wall) forward, the first x at which the deposit's equivalent height
+/// h(x) = V_solid(x) / (bin · `width` · `solid_fraction`) falls below
+/// `threshold`, interpolated linearly between bin centres (x0 when the
+/// first bin is already below it). Items are (x, solid volume). Averaged
+/// over the flume's width, one grain ahead of the pile weighs ~0.04 D in h,
+/// so isolated grains do not move this front; the mass-fraction front
+/// ([`front_position`]) is the paper's definition, this one the edge of the
+/// deposit. `scratch` holds the bins (no allocation once grown). NaN
+/// without volume.
+pub fn pile_edge(
+    items: impl Iterator<Item = (f64, f64)>,
+    x0: f64,
+    bin: f64,
+    width: f64,
+    solid_fraction: f64,
+    threshold: f64,
+    scratch: &mut Vec<f64>,
+) -> f64 {
+    scratch.clear();
+    for (x, volume) in items {
+        let b = ((x - x0) / bin).floor();
+        if !(b >= 0.0 && b.is_finite()) {
+            continue;
+        }
+        let b = b as usize;
+        if b >= scratch.len() {
+            scratch.resize(b + 1, 0.0);
+        }
+        scratch[b] += volume;
+    }
+    if scratch.is_empty() {
+        return f64::NAN;
+    }
+    let height = |b: usize| scratch.get(b).copied().unwrap_or(0.0) / (bin * width * solid_fraction);
+    let centre = |b: usize| x0 + (b as f64 + 0.5) * bin;
+    if height(0) < threshold {
+        return x0;
+    }
+    let mut b = 0;
+    while height(b + 1) >= threshold {
+        b += 1;
+    }
+    let (h0, h1) = (height(b), height(b + 1));
+    centre(b) + bin * (h0 - threshold) / (h0 - h1)
+}
+
 /// Fractions of grains with 0, 1, … 5 and ≥ 6 contacts (paper Fig. 7).
 pub fn coordination_shares(coordination: &[u16]) -> [f64; 7] {
     let mut counts = [0usize; 7];
@@ -71,6 +118,26 @@ pub fn coordination_shares(coordination: &[u16]) -> [f64; 7] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pile_edge_is_where_the_averaged_height_drops_below_the_threshold() {
+        // A wedge of unit width and solid fraction 1: the height is the
+        // volume per unit length, 10 − x in bins of 1 (centres at 0.5, 1.5 …),
+        // plus one far straggler the mass rule would follow.
+        let mut scratch = Vec::new();
+        let wedge = (0..10).map(|b| (b as f64 + 0.5, 10.0 - (b as f64 + 0.5)));
+        let straggler = std::iter::once((30.5, 0.5));
+        let edge = pile_edge(wedge.chain(straggler), 0.0, 1.0, 1.0, 1.0, 2.0, &mut scratch);
+        // h = 2.5 at 7.5 and 1.5 at 8.5: 2 is crossed at 8.0.
+        assert!((edge - 8.0).abs() < 1e-12, "{edge}");
+        // The same volume over twice the width is half as high: h = 2.25 at
+        // 5.5 and 1.75 at 6.5, so 2 is crossed at 6.0.
+        let wedge = (0..10).map(|b| (b as f64 + 0.5, 10.0 - (b as f64 + 0.5)));
+        let edge = pile_edge(wedge, 0.0, 1.0, 2.0, 1.0, 2.0, &mut scratch);
+        assert!((edge - 6.0).abs() < 1e-12, "{edge}");
+        assert_eq!(pile_edge(std::iter::once((0.2, 0.1)), 0.0, 1.0, 1.0, 1.0, 2.0, &mut scratch), 0.0);
+        assert!(pile_edge(std::iter::empty(), 0.0, 1.0, 1.0, 1.0, 2.0, &mut scratch).is_nan());
+    }
 
     #[test]
     fn coordination_shares_sum_to_one() {

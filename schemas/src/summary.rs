@@ -35,6 +35,16 @@ pub struct RunSummary {
     /// (L_f − L0)/L0 of `front_connected` at the end.
     #[serde(default)]
     pub runout_connected: Option<f64>,
+    /// The pile's edge: where the deposit's height averaged over the
+    /// flume's width (solid volume per bin over bin × width × (1 − n0))
+    /// first falls below one grain diameter, from the back wall on
+    /// ([`crate::measures::pile_edge`]). Robust to stray grains. Same form
+    /// as `front`; empty for methods without grains.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub front_pile: Vec<FrontSample>,
+    /// (L_f − L0)/L0 of `front_pile` at the end.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub runout_pile: Option<f64>,
     /// Final deposit profile: [x, height] pairs, m.
     pub deposit: Vec<[f64; 2]>,
     /// Bulk porosity of the initial column: 1 − V_solid / V_region of the first

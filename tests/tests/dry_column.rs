@@ -74,6 +74,14 @@ fn summary_holds_the_measures() {
     assert!((connected[0]["x"].as_f64().unwrap() - f0["x"].as_f64().unwrap()).abs() < 2.5e-3);
     let runout_connected = s["runout_connected"].as_f64().unwrap();
     assert!(runout_connected > 0.5 && runout_connected <= runout + 2.5e-3 / 0.02, "{runout_connected} vs {runout}");
+    // The pile's edge starts at the gate (the column's averaged height drops
+    // from H0 to 0 within one bin of L0) and ends behind the mass front.
+    let pile = s["front_pile"].as_array().unwrap();
+    assert_eq!(pile.len(), front.len());
+    let edge0 = pile[0]["x"].as_f64().unwrap();
+    assert!((edge0 - 0.02).abs() < 2.5e-3, "pile edge at t = 0: {edge0}");
+    let runout_pile = s["runout_pile"].as_f64().unwrap();
+    assert!(runout_pile > 0.3 && runout_pile <= runout + 2.5e-3 / 0.02, "{runout_pile} vs {runout}");
     // Deposit: grains spread out, the pile is lower than the initial column.
     let deposit = s["deposit"].as_array().unwrap();
     let h_max = deposit.iter().map(|p| p[1].as_f64().unwrap()).fold(0.0, f64::max);
