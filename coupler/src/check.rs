@@ -157,6 +157,27 @@ fn print_dem_lbm(scene: &Scene, warnings: &mut Vec<String>) {
         let tau0 = lbm_proc::Units::new(scene.lbm().spacing, scene.lbm().time_step, fluid.density)
             .and_then(|u| u.tau_from_viscosity(fluid.viscosity / fluid.density))
             .unwrap_or(f64::NAN);
+        // The lattice's hydrostatic density varies by 3 g H Δt²/Δx² over a liquid H tall.
+        let lbm = scene.lbm();
+        let height = s.fluids.iter().map(|f| f.region.max[2] - f.region.min[2]).fold(0.0, f64::max);
+        let head = 3.0 * scene.gravity_magnitude() * height * lbm.time_step.powi(2) / lbm.spacing.powi(2);
+        match lbm.hydrostatics {
+            schemas::scene::Hydrostatics::Lattice => {
+                println!(
+                    "hydrostatics lattice: the liquid's density varies by {:.2} % over its {height} m (3 g H dt^2/dx^2)",
+                    100.0 * head
+                );
+                if head > 0.05 {
+                    warnings.push(format!(
+                        "the lattice's hydrostatic density varies by {:.0} % over the liquid's height: the liquid is that much compressed at depth, with its buoyancy and viscosity (docs/coupling.md \"Submerged scenes\"); use lbm.hydrostatics = \"buoyancy\" (liquid filling a closed box) or a smaller lbm.time_step",
+                        100.0 * head
+                    ));
+                }
+            }
+            schemas::scene::Hydrostatics::Buoyancy => {
+                println!("hydrostatics buoyancy: the liquid feels no gravity; each grain's load gets -rho_L V g")
+            }
+        }
         let half = c.forcing_gain.gain(0.5, tau0);
         println!(
             "forcing      {} gain: a half-covered cell is pulled {half:.3} of the way to the grain per step (tau0 = {tau0:.6})",

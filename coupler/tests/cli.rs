@@ -186,3 +186,30 @@ fn method_that_contradicts_the_blocks_exits_2() {
         "{err}"
     );
 }
+
+/// A tall tank at a viscous scene's Δt compresses the liquid by its own
+/// weight: `check` says by how much and what to do; with the weight off
+/// the lattice the warning goes. A free-surface scene cannot take that
+/// form: refused at load, naming the key.
+#[test]
+fn check_warns_of_a_compressed_tank_and_buoyancy_form_needs_a_full_closed_box() {
+    let out = coupler().args(["check", "scenes/validation/settling_sphere.toml"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    // 3 g H dt²/dx² = 3 · 9.81 · 0.06 · (2.5e-4)² / (5e-4)² = 0.441.
+    assert!(text.contains("density varies by 44.1"), "{text}");
+    assert!(text.contains("lbm.hydrostatics = \"buoyancy\""), "{text}");
+    let out = coupler()
+        .args(["check", "scenes/validation/settling_sphere.toml", "--set", "lbm.hydrostatics=buoyancy"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("hydrostatics buoyancy") && !text.contains("density varies by"), "{text}");
+    let out = coupler()
+        .args(["check", "scenes/ceccato2020/sat_h060.toml", "--set", "lbm.hydrostatics=buoyancy"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("lbm.hydrostatics") && err.contains("closed box"), "{err}");
+}
