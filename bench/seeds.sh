@@ -17,6 +17,7 @@ mkdir -p "$out"
 for h in $cases; do
   for s in $seeds; do
     dir="$out/${kind}_h$h/seed$s"
+    mkdir -p "$out/${kind}_h$h"
     [ -f "$dir/summary.json" ] || target/release/coupler run "scenes/ceccato2020/${kind}_h$h.toml" --quiet \
       --out "$dir" --set "particles[0].packing.seed=$s" 2> "$dir.log"
   done
