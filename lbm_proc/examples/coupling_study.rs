@@ -36,6 +36,14 @@ fn conditions(d: f64) -> Vec<(&'static str, FluidCondition)> {
     ]
 }
 
+/// The rules worth running in `fluid`: the effective-τ rule is the molecular
+/// one without eddy viscosity.
+fn rules(fluid: FluidCondition) -> impl Iterator<Item = ForcingGain> {
+    ForcingGain::ALL
+        .into_iter()
+        .filter(move |&gain| fluid.smagorinsky > 0.0 || gain != ForcingGain::NobleTorczynskiEffective)
+}
+
 fn pct(x: f64) -> String {
     format!("{:+.1} %", 100.0 * x)
 }
@@ -54,12 +62,7 @@ fn main() {
         for &d in &resolutions {
             for (name, fluid) in conditions(d) {
                 for &phi in &ARRAY_FRACTIONS {
-                    for gain in ForcingGain::ALL {
-                        if fluid.smagorinsky == 0.0 && gain == ForcingGain::NobleTorczynskiEffective {
-                            continue; // the same as noble_torczynski without eddy viscosity
-                        }
-                        cases.push((d, name, fluid, phi, gain));
-                    }
+                    cases.extend(rules(fluid).map(|gain| (d, name, fluid, phi, gain)));
                 }
             }
         }
@@ -121,12 +124,7 @@ fn main() {
         let mut cases = Vec::new();
         for &d in &resolutions {
             for (name, fluid) in conditions(d) {
-                for gain in ForcingGain::ALL {
-                    if fluid.smagorinsky == 0.0 && gain == ForcingGain::NobleTorczynskiEffective {
-                        continue;
-                    }
-                    cases.push((d, name, fluid, gain));
-                }
+                cases.extend(rules(fluid).map(|gain| (d, name, fluid, gain)));
             }
         }
         let results: Vec<_> = cases

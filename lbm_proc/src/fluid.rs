@@ -1299,34 +1299,12 @@ impl<T: Real> Kernel<'_, T> {
     }
 
     /// τ_eff of lane `l` of `f` (pulled populations, stored as f − w) under
-    /// the uniform body force alone, in f64: the Smagorinsky closure of
-    /// [`collide`] evaluated before the direct force is added (the gain that
-    /// sets the force cannot wait for the strain the force produces).
+    /// the uniform body force alone: [`smagorinsky_tau`] evaluated before the
+    /// direct force is added (the gain that sets the force cannot wait for
+    /// the strain the force produces).
     #[inline(always)]
     fn effective_tau(&self, f: &[[T; LANES]; Q], l: usize) -> f64 {
-        let (mut drho, mut j, mut p) = (0.0, [0.0; 3], [[0.0; 3]; 3]);
-        for i in 0..Q {
-            let g = f[i][l].to_f64();
-            drho += g;
-            for a in 0..3 {
-                j[a] += E[i][a] as f64 * g;
-                for b in 0..3 {
-                    p[a][b] += (E[i][a] * E[i][b]) as f64 * g;
-                }
-            }
-        }
-        let rho = 1.0 + drho;
-        let a = self.accel;
-        let u: [f64; 3] = std::array::from_fn(|k| j[k] / rho + 0.5 * a[k]);
-        let mut q = 0.0;
-        for x in 0..3 {
-            for y in 0..3 {
-                let diagonal = if x == y { drho / 3.0 } else { 0.0 };
-                let neq = p[x][y] - diagonal - rho * u[x] * u[y] + 0.5 * rho * (a[x] * u[y] + u[x] * a[y]);
-                q += neq * neq;
-            }
-        }
-        0.5 * (self.tau0 + (self.tau0 * self.tau0 + self.smag * q.sqrt() / rho).sqrt())
+        smagorinsky_tau(&std::array::from_fn(|i| f[i][l].to_f64()), self.accel, self.tau0, self.smag)
     }
 
     /// The free-surface part of the pull for interface cell (x, y, z), lane
@@ -1607,6 +1585,35 @@ fn lane_moments<T: Real>(f: &[[T; LANES]; Q], src: &[T], ncells: usize, own: usi
 /// Lanes per register block of [`lane_moments`]: 4 f64 fill one AVX2 register.
 const MOMENT_BLOCK: usize = 4;
 
+/// The Smagorinsky relaxation time of [`collide`] in f64 for one cell's
+/// populations `g` (stored as f − w) under body acceleration `a`:
+/// τ = ½(τ0 + √(τ0² + 18√2 C² |Π^neq|/ρ)), `smag` = 18√2 C², with the
+/// force-corrected Π^neq = Σ g e e − δρ/3 − ρuu + ½ρ(au + ua) and Guo's
+/// u = Σ g e/ρ + a/2. Used by the gain rules that take a cell's τ_eff.
+pub(crate) fn smagorinsky_tau(g: &[f64; Q], a: [f64; 3], tau0: f64, smag: f64) -> f64 {
+    let (mut drho, mut j, mut p) = (0.0, [0.0; 3], [[0.0; 3]; 3]);
+    for i in 0..Q {
+        drho += g[i];
+        for x in 0..3 {
+            j[x] += E[i][x] as f64 * g[i];
+            for y in 0..3 {
+                p[x][y] += (E[i][x] * E[i][y]) as f64 * g[i];
+            }
+        }
+    }
+    let rho = 1.0 + drho;
+    let u: [f64; 3] = std::array::from_fn(|k| j[k] / rho + 0.5 * a[k]);
+    let mut q = 0.0;
+    for x in 0..3 {
+        for y in 0..3 {
+            let diagonal = if x == y { drho / 3.0 } else { 0.0 };
+            let neq = p[x][y] - diagonal - rho * u[x] * u[y] + 0.5 * rho * (a[x] * u[y] + u[x] * a[y]);
+            q += neq * neq;
+        }
+    }
+    0.5 * (tau0 + (tau0 * tau0 + smag * q.sqrt() / rho).sqrt())
+}
+
 /// BGK (`TRT = false`) or TRT collision with Smagorinsky and Guo forcing on
 /// the first `lanes` lanes of `f`, in place; `f` holds f_i − w_i before and after.
 ///
@@ -1714,6 +1721,35 @@ mod tests {
 
     fn periodic<T: Real>(dims: [usize; 3], params: FluidParams) -> Fluid<T> {
         Fluid::new(dims, [Faces::Periodic; 3], params).expect("valid parameters")
+    }
+
+    #[test]
+    fn smagorinsky_tau_reads_the_non_equilibrium_stress() {
+        // f = f_eq(ρ, u) + w_i 9/2 (e_i e_i − I/3) : Π with a traceless Π:
+        // its second moment beyond equilibrium is exactly Π, so |Π^neq| = |Π|
+        // and τ follows the closed form; the shift g = f − w of the storage.
+        let (rho, u) = (1.02, [0.03, -0.01, 0.02]);
+        let pi = [[2e-4, 1e-3, 0.0], [1e-3, -3e-4, -5e-4], [0.0, -5e-4, 1e-4]];
+        let feq = equilibrium(rho, u);
+        let g: [f64; Q] = std::array::from_fn(|i| {
+            let contraction: f64 = (0..3)
+                .flat_map(|x| (0..3).map(move |y| (x, y)))
+                .map(|(x, y)| {
+                    let q = (E[i][x] * E[i][y]) as f64 - if x == y { CS2 } else { 0.0 };
+                    q * pi[x][y]
+                })
+                .sum();
+            feq[i] + W[i] * contraction / (2.0 * CS2 * CS2) - W[i]
+        });
+        let norm = pi.iter().flatten().map(|p| p * p).sum::<f64>().sqrt();
+        let (tau0, smag) = (0.500667, 18.0 * std::f64::consts::SQRT_2 * 0.16 * 0.16);
+        let expected = 0.5 * (tau0 + (tau0 * tau0 + smag * norm / rho).sqrt());
+        let tau = smagorinsky_tau(&g, [0.0; 3], tau0, smag);
+        assert!((tau - expected).abs() < 1e-12, "{tau} vs {expected}");
+        assert!(tau > tau0 + 4e-4, "the strain must raise tau: {tau}");
+        // At equilibrium τ_eff is τ0.
+        let g0: [f64; Q] = std::array::from_fn(|i| feq[i] - W[i]);
+        assert!((smagorinsky_tau(&g0, [0.0; 3], tau0, smag) - tau0).abs() < 1e-9);
     }
 
     #[test]

@@ -98,8 +98,8 @@ pub struct ArrayDrag {
 /// of [`ARRAY_FRACTIONS`]) with spheres of about `d_target` cells: the box
 /// holds n³ spheres (n = 1–4, the fewest that put D within 3 % of
 /// `d_target` with an integer box), each off the lattice symmetry by a
-/// different sub-cell offset. A uniform body force, set every step from the tracked momentum
-/// (deadbeat), holds the mean velocity over the box (sphere interiors at 0
+/// different sub-cell offset. A uniform body force, set every step from
+/// the tracked momentum (deadbeat), holds the mean velocity over the box (sphere interiors at 0
 /// included) at the superficial U_s of Re_p = U_s D/ν = 0.05; the body
 /// force on the whole box is then the drag, F = G L³ as Zick & Homsy
 /// define it. Runs until the drag changes by < 1e-4 over 4000 steps, at
@@ -112,10 +112,11 @@ pub fn simple_cubic_drag(
     max_steps: usize,
 ) -> ArrayDrag {
     let reference = zick_homsy(phi).expect("a tabulated solid fraction");
-    let chi = (phi / (PI / 6.0)).cbrt(); // D / spacing
-                                         // The fewest copies that bring D within 3 % of the target (each copy
-                                         // multiplies the cells by n³), else the closest of n = 1–4; the box must
-                                         // be wider than a sphere's covering (D + 2 cells).
+    // D over the array's spacing.
+    let chi = (phi / (PI / 6.0)).cbrt();
+    // The fewest copies that bring D within 3 % of the target (each copy
+    // multiplies the cells by n³), else the closest of n = 1–4; the box must
+    // be wider than a sphere's covering (D + 2 cells).
     let fit = |n: usize| {
         let l = ((n as f64 * d_target / chi).round() as usize).max(2);
         (n, l, (chi * l as f64 / n as f64 / d_target - 1.0).abs())
