@@ -1668,6 +1668,7 @@ fn collide<T: Real, const TRT: bool, const FORCED: bool>(
         let pyz = s[5] - s[6] - rho * uy * uz + hr * (ay * uz + uy * az);
         let pxz = s[7] - s[8] - rho * ux * uz + hr * (ax * uz + ux * az);
         let q = pxx * pxx + pyy * pyy + pzz * pzz + k(2.0) * (pxy * pxy + pyz * pyz + pxz * pxz);
+        // The same closure as `smagorinsky_tau` (the gain rules' f64 copy, tested there).
         let tau = half * (c.tau0 + (c.tau0_sq + c.smag * q.sqrt() * inv_rho).sqrt());
         let wp = one / tau;
         let wm = if TRT { (tau - half) / (half * (tau - half) + c.magic) } else { wp };
