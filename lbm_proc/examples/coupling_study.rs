@@ -5,10 +5,10 @@
 //! 0.6, 1), printed as markdown tables of errors.
 //!
 //! ```sh
-//! cargo run --release -p lbm_proc --example coupling_study -- [arrays] [permeability] [ergun] [--quick]
+//! cargo run --release -p lbm_proc --example coupling_study -- [arrays] [permeability] [ergun] [settling] [--quick]
 //! ```
 //!
-//! No section named: all three. `--quick`: D/Δx = 4.17 only. Cases run in
+//! No section named: all four. `--quick`: D/Δx = 4.17 only. Cases run in
 //! parallel on the machine's cores; each is deterministic.
 
 use std::time::Instant;
@@ -16,6 +16,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use lbm_proc::coupling::ForcingGain;
+use lbm_proc::validation::settling::{settle, SettlingCase, SettlingLiquid};
 use lbm_proc::validation::{
     column_packing, kozeny_carman, packing_ergun, packing_permeability, simple_cubic_drag, FluidCondition,
     ARRAY_FRACTIONS, PAPER_D_CELLS,
@@ -193,5 +194,113 @@ fn main() {
             }
         }
         eprintln!("ergun done after {:.0} s", started.elapsed().as_secs_f64());
+    }
+
+    if wants("settling") {
+        settling(&resolutions, quick);
+        eprintln!("settling done after {:.0} s", started.elapsed().as_secs_f64());
+    }
+    if wants("tank-width") {
+        tank_width();
+        eprintln!("tank-width done after {:.0} s", started.elapsed().as_secs_f64());
+    }
+}
+
+/// The wall factor's check: the viscous settling cases at D/Δx = 4.17 in
+/// tanks 10 D and 20 D wide. If the wall factor is right, the error against
+/// Schiller–Naumann × wall factor does not depend on the width (the
+/// coupling's error is the same sphere's in both).
+fn tank_width() {
+    println!("\n## Settling sphere: error against Schiller-Naumann x wall factor in tanks 10 D and 20 D wide\n");
+    let viscous = SettlingLiquid::Viscous { velocity: 0.04 };
+    let mut cases = Vec::new();
+    for re in [1.0, 5.0, 30.0] {
+        for gain in [ForcingGain::NobleTorczynski, ForcingGain::CoveredFraction] {
+            for width in [10.0, 20.0] {
+                cases.push(SettlingCase { width, ..SettlingCase::new(re, PAPER_D_CELLS, viscous, gain) });
+            }
+        }
+    }
+    cases.sort_by(|a, b| b.width.total_cmp(&a.width));
+    let results: Vec<_> = cases.par_iter().map(|&case| (case, settle(case))).collect();
+    println!("| Re_t | rule | width (D) | wall factor | U / U_inf | U / U_expected - 1 |");
+    println!("|---|---|---|---|---|---|");
+    for (case, result) in &results {
+        match result {
+            Ok(r) => println!(
+                "| {} | {} | {} | {:.4} | {:.4} | {} |",
+                case.reynolds,
+                case.gain.name(),
+                case.width,
+                r.expected / r.unbounded,
+                r.measured / r.unbounded,
+                pct(r.error)
+            ),
+            Err(e) => println!("| {} | {} | {} | | | {e} |", case.reynolds, case.gain.name(), case.width),
+        }
+    }
+}
+
+/// A sphere (ρ_s/ρ_L = 2.6) settling from rest in a closed tank 10 D wide
+/// and 32–39 D tall ([`SettlingCase::new`]): viscous liquids at terminal Re 1, 5 and 30 (lattice terminal
+/// velocity 0.04, so τ0 from 0.517 to 1.46) under the molecular and the
+/// covered-fraction rules; the paper's water (τ0 → ½, Smagorinsky) at Re 30
+/// under the molecular and effective-τ rules. `--quick`: D/Δx = 4.17, Re 5
+/// and 30 only.
+fn settling(resolutions: &[f64], quick: bool) {
+    println!("\n## Sphere settling in a closed tank: terminal velocity against Schiller-Naumann x wall factor\n");
+    let reynolds: &[f64] = if quick { &[5.0, 30.0] } else { &[1.0, 5.0, 30.0] };
+    let viscous = SettlingLiquid::Viscous { velocity: 0.04 };
+    let mut cases = Vec::new();
+    for &d in resolutions {
+        for &re in reynolds {
+            for gain in [ForcingGain::NobleTorczynski, ForcingGain::CoveredFraction] {
+                cases.push(SettlingCase::new(re, d, viscous, gain));
+            }
+        }
+    }
+    // The paper's water settles slowly (U = 30 nu/D ~ 1.6e-3 cells per
+    // step: 40 000 steps), so only at the paper's resolution.
+    for gain in [ForcingGain::NobleTorczynski, ForcingGain::NobleTorczynskiEffective] {
+        cases.push(SettlingCase::new(30.0, PAPER_D_CELLS, SettlingLiquid::PaperWater, gain));
+    }
+    // Largest first, so the parallel tail is short.
+    cases.sort_by(|a, b| b.d_cells.total_cmp(&a.d_cells));
+    let results: Vec<_> = cases.par_iter().map(|&case| (case, settle(case))).collect();
+    println!(
+        "| D/dx | liquid | Re_t | tau0 | rule | U / U_expected - 1 | trend in window | surface / forcing | steps |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for (case, result) in &results {
+        let liquid = match case.liquid {
+            SettlingLiquid::Viscous { .. } => "viscous",
+            SettlingLiquid::PaperWater => "paper water",
+        };
+        match result {
+            Ok(r) => println!(
+                "| {:.2} | {liquid} | {} | {:.5} | {} | {} | {} | {:.3} | {} |",
+                case.d_cells,
+                case.reynolds,
+                r.tau,
+                case.gain.name(),
+                pct(r.error),
+                pct(r.trend),
+                r.surface_over_forcing,
+                r.steps
+            ),
+            Err(e) => {
+                println!("| {:.2} | {liquid} | {} | | {} | {e} | | | |", case.d_cells, case.reynolds, case.gain.name())
+            }
+        }
+    }
+    if let Some((_, Ok(r))) = results.iter().find(|(_, r)| r.is_ok()) {
+        println!(
+            "\nExpected velocity = Schiller-Naumann x wall factor {:.4} at Re {} (tank {} x {} cells at D/dx {:.2}).",
+            r.expected / r.unbounded,
+            r.case.reynolds,
+            r.cells[0],
+            r.cells[1],
+            r.case.d_cells
+        );
     }
 }

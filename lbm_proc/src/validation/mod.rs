@@ -7,7 +7,10 @@
 //! * [`packing_flow`] on a [`RandomPacking`]: the superficial velocity of
 //!   liquid driven through a fixed random packing, as a Darcy permeability
 //!   against Kozeny–Carman ([`kozeny_carman`]) in creeping flow, or as a
-//!   drag against Ergun's ([`ergun_gradient`]) at Re_p 1–100.
+//!   drag against Ergun's ([`ergun_gradient`]) at Re_p 1–100;
+//! * [`settling::settle`]: one free sphere settling from rest in a closed
+//!   tank, its terminal velocity against Schiller–Naumann with the tank's
+//!   wall factor, at terminal Re 1–30.
 //!
 //! Everything is in lattice units (Δx = Δt = ρ0 = 1), f64 populations, BGK
 //! (the scenes' collision), periodic boxes. The tests run a few cases at
@@ -21,6 +24,8 @@ use crate::coupling::{Coupling, ForcingGain, Sphere};
 use crate::fluid::{Faces, Fluid, FluidParams};
 use crate::lattice::{E, Q};
 use crate::units::Units;
+
+pub mod settling;
 
 /// The paper's saturated column: water (ν = 1e-6 m²/s) at Δx = 6e-4 m, Δt =
 /// 8e-5 s, grains of D = 2.5 mm, so D/Δx = 4.1667 and τ0 = 0.500667.
