@@ -5,10 +5,10 @@
 //! 0.6, 1), printed as markdown tables of errors.
 //!
 //! ```sh
-//! cargo run --release -p lbm_proc --example coupling_study -- [arrays] [permeability] [ergun] [settling] [--quick]
+//! cargo run --release -p lbm_proc --example coupling_study -- [arrays] [permeability] [ergun] [settling] [tank-width] [--quick]
 //! ```
 //!
-//! No section named: all four. `--quick`: D/Δx = 4.17 only. Cases run in
+//! No section named: all five. `--quick`: D/Δx = 4.17 only. Cases run in
 //! parallel on the machine's cores; each is deterministic.
 
 use std::time::Instant;

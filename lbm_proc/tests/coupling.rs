@@ -177,7 +177,8 @@ fn reynolds_growth(l: usize) -> (f64, f64) {
         r.force / (3.0 * PI * nu * 8.0 * (r.re * nu / 8.0))
     };
     let growth = normalised(&inertial, 0.6) / normalised(&creeping, 1.0);
-    let schiller_naumann = (1.0 + 0.15 * 10f64.powf(0.687)) / (1.0 + 0.15 * 0.1f64.powf(0.687));
+    let schiller_naumann =
+        lbm_proc::validation::settling::schiller_naumann(10.0) / lbm_proc::validation::settling::schiller_naumann(0.1);
     println!(
         "drag vs Re, L = {l}: F/(3 pi mu D U) = {:.4} at Re {:.2}, {:.4} at Re {:.2}: grows {growth:.4}x; \
          an isolated sphere (Schiller-Naumann) {schiller_naumann:.4}x ({:+.1} %)",

@@ -19,7 +19,8 @@ fn terminal_velocity(d: f64, rho_s: f64, rho_l: f64, mu: f64, g: f64, side: f64,
     let mut u = weight / (3.0 * std::f64::consts::PI * mu * d) * wall;
     for _ in 0..50 {
         let re = rho_l * u * d / mu;
-        u = weight / (3.0 * std::f64::consts::PI * mu * d * (1.0 + 0.15 * re.powf(0.687))) * wall;
+        u = weight / (3.0 * std::f64::consts::PI * mu * d * lbm_proc::validation::settling::schiller_naumann(re))
+            * wall;
     }
     u
 }

@@ -42,7 +42,10 @@ pub fn schiller_naumann(re: f64) -> f64 {
 /// axis of a square duct has the Stokes wall coefficient 1.903 D/L (Happel
 /// & Brenner 1965, Table 7-4.1) where a cylinder has 2.104 λ (Faxén), so
 /// the two agree to first order in Stokes flow. At Re → 0 the factor is
-/// within 0.5 % of Faxén's series for λ ≤ 0.1 (tested).
+/// within 0.5 % of Faxén's series for λ ≤ 0.1 (tested). The correlation is
+/// not in `coupling-references.md` (quoted from the paper, unchecked
+/// there); the study's tank-width check finds it 3–7 points too strong at
+/// L = 10 D (docs/coupling.md, "Settling sphere").
 pub fn wall_factor(d_over_l: f64, re: f64) -> f64 {
     let lambda = 1.903 / 2.10444 * d_over_l;
     let alpha = (3.3 + 0.085 * re) / (1.0 + 0.1 * re);
@@ -148,16 +151,11 @@ pub struct SettlingRun {
     /// (velocity leaving the window − entering it) / measured: near 0 when
     /// the sphere was at its terminal velocity throughout.
     pub trend: f64,
-    /// Largest distance of the centre from its start across the tank, D.
-    pub drift: f64,
     /// Over the window, the mean vertical surface force (what the grain is
     /// given) over the mean vertical −Σ share·F_IB (the forcing's reaction):
     /// 1 when the interior liquid's momentum is steady.
     pub surface_over_forcing: f64,
     pub steps: usize,
-    /// (step, height of the centre above the floor in D, settling velocity
-    /// over the unbounded terminal velocity), every 20 steps.
-    pub track: Vec<[f64; 3]>,
 }
 
 /// Why a settling run gave no velocity.
@@ -194,9 +192,7 @@ pub fn settle(case: SettlingCase) -> Result<SettlingRun, SettlingError> {
     let (mass, inertia) = (s * volume, s * volume * d * d / 10.0);
     let (top, bottom) = (case.window.0 * d, case.window.1 * d);
     let max_steps = (3.0 * (sphere.position[2] - bottom) / unbounded) as usize;
-    let mut track = Vec::new();
     let mut entered: Option<(f64, f64)> = None;
-    let mut drift: f64 = 0.0;
     let (mut surface_sum, mut forcing_sum) = (0.0, 0.0);
     for step in 1..=max_steps {
         let z_before = sphere.position[2];
@@ -212,11 +208,6 @@ pub fn settle(case: SettlingCase) -> Result<SettlingRun, SettlingError> {
             return Err(SettlingError::Unstable(step, fluid.tau));
         }
         let (z, w) = (sphere.position[2], -sphere.velocity[2]);
-        drift =
-            drift.max(((sphere.position[0] - start[0]).powi(2) + (sphere.position[1] - start[1]).powi(2)).sqrt() / d);
-        if step % 20 == 0 {
-            track.push([step as f64, z / d, w / unbounded]);
-        }
         // Crossing times and velocities interpolated within the step.
         let cross = |level: f64| {
             let f = (z_before - level) / (z_before - z);
@@ -244,10 +235,8 @@ pub fn settle(case: SettlingCase) -> Result<SettlingRun, SettlingError> {
                 measured,
                 error: measured / expected - 1.0,
                 trend: (w_out - w_in) / measured,
-                drift,
                 surface_over_forcing: surface_sum / forcing_sum,
                 steps: step,
-                track,
             });
         }
     }
