@@ -45,15 +45,22 @@
 //!    interior liquid overshoots, and the next step pulls it back. Fed to a
 //!    free grain that alternation grows (a 4000 kg/m³ sphere settling in
 //!    oil blew up within 30 steps). Hence step 6.
-//! 6. **Surface force** (what a free grain is given): the momentum the
-//!    streaming brings into the covered cells, F_s = Σ_c share·w·(Σ_i f_i e_i
-//!    pulled − Σ_i f*_i e_i left in the cell by the last collision). By
-//!    momentum conservation this equals −ΣF_IB − m_L a + (change of the
-//!    interior liquid's momentum): drag, pressure, buoyancy and the
-//!    interior inertia of Kempe & Fröhlich 2012, measured instead of
-//!    modelled, so nothing is lagged and the overshoot cancels exactly. At
-//!    rest it is the buoyancy; in steady motion it equals `force + buoyancy`
-//!    on average (tests/coupling.rs).
+//! 6. **Surface force** (what a free grain is given): Kempe & Fröhlich's
+//!    (2012) balance of the liquid the grain holds, with that liquid's
+//!    momentum measured instead of modelled,
+//!    F_s = −ΣF_IB − m_L a + (I_n − I_{n−1})/Δt, I_n = Σ_c share·w·q*_c,
+//!    q*_c the cell's momentum after step n's collision (and the matching
+//!    angular momentum about the centre for the torque). As cells enter
+//!    and leave a moving grain's cover, I changes by the momentum of the
+//!    liquid swept in and left behind: counting it keeps the grains and the
+//!    liquid outside them in exact momentum balance (tests/coupling.rs), and
+//!    the overshoot of step 5 cancels, since it is in both I and F_IB. At
+//!    rest F_s is the buoyancy; in steady motion it equals `force +
+//!    buoyancy` on average. A sphere not collected in the step before
+//!    (the first step, a changed sphere count) gets `force + buoyancy` for
+//!    one step. Until session 13 the sum left out the swept liquid
+//!    (w_n (q_pulled − q*_{n−1}) per cell): a grain settling at Re 30 under
+//!    the default gain was given 0.78–0.87 of the reaction (docs/coupling.md).
 //!
 //! Lattice cell (i, j, k) has its centre at `origin + (i + ½, j + ½, k + ½) Δx`
 //! (as in [`crate::setup`]). Periodic axes wrap the spheres.
@@ -90,10 +97,12 @@ pub struct SphereForce {
     pub buoyancy: [f64; 3],
     /// m_L, kg: the covered liquid mass (ρ_L times the wetted volume).
     pub liquid_mass: f64,
-    /// Σ share·inflow, N: the momentum flux into the grain's covered cells
-    /// (step 6 of the module docs). What the grain feels from the liquid.
+    /// `force + buoyancy` + the change over the step of the momentum of the
+    /// liquid the grain holds, N (step 6 of the module docs): what a free
+    /// grain feels from the liquid.
     pub surface_force: [f64; 3],
-    /// Σ (x_c − x_p) × share·inflow, N m.
+    /// `torque` + the change of the held liquid's angular momentum about
+    /// the centre, N m.
     pub surface_torque: [f64; 3],
 }
 
@@ -199,6 +208,12 @@ pub struct Coupling {
     forced: Vec<ForcedCell>,
     forced_rows: Vec<usize>,
     results: Vec<SphereForce>,
+    /// Per sphere, the momentum and angular momentum (about its centre) of
+    /// the liquid it held after the last collected step, lattice units, and
+    /// the fluid's step count then: the start of the next step's interior
+    /// inertia (step 6 of the module docs).
+    held: Vec<([f64; 3], [f64; 3])>,
+    held_at: Option<u64>,
     /// The fluid's step count and forcing version when [`Coupling::apply`]
     /// last installed its list (the fluid holds the list from then on).
     applied_at: Option<(u64, u64)>,
@@ -325,6 +340,8 @@ impl Coupling {
             forced: Vec::new(),
             forced_rows: Vec::new(),
             results: Vec::new(),
+            held: Vec::new(),
+            held_at: None,
             applied_at: None,
             gain: ForcingGain::default(),
         })
@@ -650,7 +667,12 @@ impl Coupling {
         let units = &self.units;
         let (crossings, starts, slots, row_base) = (&self.crossings, &self.sphere_start, &self.slots, &self.row_base);
         let placed = &self.placed;
-        self.results.par_iter_mut().enumerate().for_each(|(s, out)| {
+        // The liquid held after the previous step is this step's start only
+        // if that step was collected for the same spheres.
+        let continues = self.held_at == Some(fluid.steps().wrapping_sub(1)) && self.held.len() == self.results.len();
+        self.held.resize(self.results.len(), ([0.0; 3], [0.0; 3]));
+        self.held_at = Some(fluid.steps());
+        self.results.par_iter_mut().zip(self.held.par_iter_mut()).enumerate().for_each(|(s, (out, held))| {
             *out = SphereForce::default();
             // The next sphere's cells, one run per row it crosses, are
             // scattered over the forced cells: ask for them all now, so
@@ -664,6 +686,7 @@ impl Coupling {
                 }
             }
             let p = placed[s].0;
+            let (mut momentum, mut angular) = ([0.0; 3], [0.0; 3]);
             for c in &crossings[starts[s]..starts[s + 1]] {
                 let base = row_base[c.row as usize] as usize;
                 for slot in &slots[c.slot as usize..(c.slot + c.covered) as usize] {
@@ -676,15 +699,22 @@ impl Coupling {
                         out.torque[d] += t[d];
                     }
                     out.liquid_mass += share * a.liquid;
-                    let inflow = a.inflow.map(|x| share * x);
-                    let t = cross(r, inflow);
+                    let q = a.held.map(|x| share * x);
+                    let l = cross(r, q);
                     for d in 0..3 {
-                        out.surface_force[d] += inflow[d];
-                        out.surface_torque[d] += t[d];
+                        momentum[d] += q[d];
+                        angular[d] += l[d];
                     }
                 }
             }
-            out.buoyancy = g.map(|a| units.force_to_si(-out.liquid_mass * a));
+            // A sphere first seen gets the reaction and buoyancy alone for
+            // this step (its interior inertia from here on).
+            let (before, angular_before) = if continues { *held } else { (momentum, angular) };
+            *held = (momentum, angular);
+            let buoyancy = g.map(|a| -out.liquid_mass * a);
+            out.surface_force = std::array::from_fn(|d| momentum[d] - before[d] + out.force[d] + buoyancy[d]);
+            out.surface_torque = std::array::from_fn(|d| angular[d] - angular_before[d] + out.torque[d]);
+            out.buoyancy = buoyancy.map(|f| units.force_to_si(f));
             out.force = out.force.map(|f| units.force_to_si(f));
             out.torque = out.torque.map(|t| units.torque_to_si(t));
             out.surface_force = out.surface_force.map(|f| units.force_to_si(f));

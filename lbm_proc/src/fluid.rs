@@ -1290,12 +1290,10 @@ impl<T: Real> Kernel<'_, T> {
         // momentum are conserved at any τ, so F_IB and the surface force are
         // unchanged; partly covered cells (the grain's surface) keep τ.
         accel[3][l] = T::from_f64(if w >= 1.0 { 1.0 } else { 0.0 });
-        let j_left = m.j_left;
-        // The covered part's momentum balance, w·Δq = w·(inflow + F_IB + ρa),
-        // leaves (1 − w)·F_IB to the uncovered part: the grain's share of the
-        // forcing reaction is the rest (coupling.rs, step 6).
-        let inflow = std::array::from_fn(|a| w * (j[a] - j_left[a]) - (1.0 - w) * force[a]);
-        AppliedForce { cell: cell.cell, force, liquid: w * rho, inflow }
+        // Guo's forcing adds ρa + F_IB to the momentum over the step; the
+        // covered part's share is what the grain holds (coupling.rs, step 6).
+        let held = std::array::from_fn(|a| w * (j[a] + rho * self.accel[a] + force[a]));
+        AppliedForce { cell: cell.cell, force, liquid: w * rho, held }
     }
 
     /// τ_eff of lane `l` of `f` (pulled populations, stored as f − w) under

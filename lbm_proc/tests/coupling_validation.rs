@@ -105,27 +105,32 @@ fn default_gain_packing_drag_against_ergun_in_the_papers_water_matches_the_study
 
 /// One sphere (ρ_s/ρ_L = 2.6) settling from rest in a closed tank 10 D
 /// wide, at D/Δx = 4.17 in a viscous liquid at unbounded terminal Re 5
-/// (τ0 = 0.6): terminal velocity against Schiller–Naumann times the
-/// tank's wall factor (`lbm_proc::validation::settling`). Study: the
-/// covered fraction −2.0 %, the default +18.1 % (a moving grain's partly
-/// covered cells pulled at the rate (τ0 − ½) allows: its drag ~15 % low at
-/// every resolution, docs/coupling.md "Settling sphere"). Also the grain's
-/// surface force over the forcing's reaction at terminal velocity: 0.996
-/// and 0.978 (the surface force leaves out the momentum of the liquid in
-/// cells whose covered fraction changes as the grain moves, which the
-/// weakly pulled cells of the default carry at a velocity unlike the
-/// grain's). Each within 1 point.
+/// (τ0 = 0.6) and 30 (τ0 = 0.517): terminal velocity against
+/// Schiller–Naumann times the tank's wall factor
+/// (`lbm_proc::validation::settling`; the factor is itself uncertain by
+/// 3–7 points, docs/coupling.md "Settling sphere"). Study (session 13,
+/// the surface force with the held liquid's inertia): Re 5, the covered
+/// fraction −2.1 %, the default +16.0 % (at τ0 = 0.6 its partly covered
+/// cells are pulled at the rate (τ0 − ½) allows); Re 30, the default
+/// +2.1 %, also within 5 % of the drag law. Each within 1 point of the
+/// study. And at terminal velocity the grain is given the forcing's
+/// reaction on average (surface force over reaction 1 within 1 %: the
+/// liquid swept into and out of the grain's cover is counted; without it
+/// the ratio was 0.78 at Re 30).
 #[test]
 fn settling_sphere_terminal_velocity_matches_the_study() {
     use lbm_proc::validation::settling::{settle, SettlingCase, SettlingLiquid};
     let viscous = SettlingLiquid::Viscous { velocity: 0.04 };
-    for (gain, measured, ratio) in
-        [(ForcingGain::CoveredFraction, -0.020, 0.996), (ForcingGain::default(), 0.181, 0.978)]
-    {
-        let r = settle(SettlingCase::new(5.0, PAPER_D_CELLS, viscous, gain)).expect("the sphere settles");
+    let cases = [
+        (5.0, ForcingGain::CoveredFraction, -0.021),
+        (5.0, ForcingGain::default(), 0.160),
+        (30.0, ForcingGain::default(), 0.021),
+    ];
+    for (re, gain, measured) in cases {
+        let r = settle(SettlingCase::new(re, PAPER_D_CELLS, viscous, gain)).expect("the sphere settles");
+        let name = gain.name();
         println!(
-            "{}: U = {:.5} against {:.5} expected ({:+.2} %, study {:+.1} %), trend {:+.2} %, surface/forcing {:.4}, {} steps",
-            gain.name(),
+            "Re {re} {name}: U = {:.5} against {:.5} expected ({:+.2} %, study {:+.1} %), trend {:+.2} %, surface/forcing {:.4}, {} steps",
             r.measured,
             r.expected,
             100.0 * r.error,
@@ -134,9 +139,11 @@ fn settling_sphere_terminal_velocity_matches_the_study() {
             r.surface_over_forcing,
             r.steps
         );
-        assert!((r.error - measured).abs() < 0.01, "{}: {:+.4}, study {measured:+.3}", gain.name(), r.error);
-        assert!(r.trend.abs() < 0.01, "{}: still accelerating in the window ({:+.3})", gain.name(), r.trend);
-        let name = gain.name();
-        assert!((r.surface_over_forcing - ratio).abs() < 0.01, "{name}: {}, study {ratio}", r.surface_over_forcing);
+        assert!((r.error - measured).abs() < 0.01, "Re {re} {name}: {:+.4}, study {measured:+.3}", r.error);
+        assert!(r.trend.abs() < 0.01, "Re {re} {name}: still accelerating in the window ({:+.3})", r.trend);
+        assert!((r.surface_over_forcing - 1.0).abs() < 0.01, "Re {re} {name}: surface/reaction {}", r.surface_over_forcing);
+        if re == 30.0 {
+            assert!(r.error.abs() < 0.05, "Re 30 {name}: {:+.4} against the drag law", r.error);
+        }
     }
 }

@@ -105,7 +105,7 @@ fn settling_sphere_two_processes_match_in_process_and_terminal_velocity() {
 /// (one Euler step per lattice step) and against Schiller–Naumann times
 /// the tank's wall factor. Mean velocity while the centre falls from 20 D
 /// to 12 D above the floor, crossings interpolated between the 2 ms state
-/// frames. Measured: 0.14232 m/s both ways (+0.00 %), +0.22 % against the
+/// frames. Measured: 0.14241 m/s both ways (+0.00 %), +0.28 % against the
 /// drag law. Bounds 1 % (the two integrators) and 5 % (the study: the
 /// covered fraction at τ0 0.60–0.64 is −2.0 to +3.4 % at D/Δx 4.17–6;
 /// docs/coupling.md "Settling sphere").

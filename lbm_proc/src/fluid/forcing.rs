@@ -41,12 +41,11 @@ pub struct AppliedForce {
     /// weight × fill × ρ: the liquid mass the forcing acted on (lattice
     /// units, ρ0Δx³); 0 in gas and wall cells.
     pub liquid: f64,
-    /// w (Σ f e pulled − Σ f* e left here last step) − (1 − w) F_IB with
-    /// w = weight × fill: the force on the cell's covered part from the
-    /// liquid around it (lattice units). Summed over a grain's cells it is
-    /// the grain's drag, pressure and buoyancy with the inertia of the liquid
-    /// inside it: −ΣF_IB − m_L a + d/dt Σ w q (coupling.rs, step 6).
-    pub inflow: [f64; 3],
+    /// w (Σ f e + ρa + F_IB) with w = weight × fill: the momentum of the
+    /// cell's covered part after this step's collision (lattice units). Its
+    /// change over a step, summed over a grain's cells, is the inertia of
+    /// the liquid the grain holds (coupling.rs, step 6).
+    pub held: [f64; 3],
 }
 
 /// The forcing list and its per-step output, reused (no allocation once grown).
