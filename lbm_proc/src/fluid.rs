@@ -1224,8 +1224,8 @@ impl<T: Real> Kernel<'_, T> {
         // same order per lane, so the same bits as one lane at a time).
         let mut moments = None;
         if chunk_end - k >= VECTOR_MOMENTS_FROM {
-            let mut m = LaneMoments { drho: [0.0; LANES], j: [[0.0; LANES]; 3], j_left: [[0.0; LANES]; 3] };
-            lane_moments(f, self.src, self.ncells, own, n, &mut m);
+            let mut m = LaneMoments { drho: [0.0; LANES], j: [[0.0; LANES]; 3] };
+            lane_moments(f, n, &mut m);
             moments = Some(m);
         }
         while k < chunk_end {
@@ -1234,7 +1234,7 @@ impl<T: Real> Kernel<'_, T> {
                 let l = cell.cell - own;
                 let m = match &moments {
                     Some(m) => CellMoments::of_lane(m, l),
-                    None => CellMoments::of_cell(f, self.src, self.ncells, cell.cell, l),
+                    None => CellMoments::of_cell(f, l),
                 };
                 let force = self.direct_force(&cell, l, &m, f, accel);
                 // SAFETY: entry k's cell lies in plane z, which only this task writes.
@@ -1405,11 +1405,9 @@ impl<T: Real> Kernel<'_, T> {
             let (lo, hi) = (x0.saturating_sub(1), (end + 1).min(self.nx));
             let own = (z * self.ny + y) * self.nx;
             let r = z * self.ny + y;
-            // Forced cells read what the last collision left in them (j_left),
-            // interface cells their own populations (their velocity and the
-            // outgoing half of the mass exchange): both off the pulls' rows.
-            let own_read = self.rows[r] & ROW_ANY_INTERFACE != 0
-                || matches!(self.forced_rows.get(r..r + 2), Some(&[a, b]) if b > a);
+            // Interface cells read their own populations (their velocity and
+            // the outgoing half of the mass exchange), off the pulls' rows.
+            let own_read = self.rows[r] & ROW_ANY_INTERFACE != 0;
             for i in 0..Q {
                 let e = E[i];
                 if let (Some(ys), Some(zs)) =
@@ -1485,20 +1483,18 @@ const PREFETCH_AHEAD: usize = 1;
 /// lanes at once ([`lane_moments`]) instead of one cell at a time.
 const VECTOR_MOMENTS_FROM: usize = 16;
 
-/// Per lane of a chunk: Σg (= ρ − 1) and Σ g e of the pulled populations,
-/// and Σ g* e of what the last collision left in the cell (f64 sums).
+/// Per lane of a chunk: Σg (= ρ − 1) and Σ g e of the pulled populations
+/// (f64 sums).
 #[derive(Clone, Copy)]
 struct LaneMoments {
     drho: [f64; LANES],
     j: [[f64; LANES]; 3],
-    j_left: [[f64; LANES]; 3],
 }
 
 /// The moments of one forced cell, as [`Kernel::direct_force`] needs them.
 struct CellMoments {
     drho: f64,
     j: [f64; 3],
-    j_left: [f64; 3],
 }
 
 impl CellMoments {
@@ -1506,54 +1502,47 @@ impl CellMoments {
         CellMoments {
             drho: m.drho[l],
             j: [m.j[0][l], m.j[1][l], m.j[2][l]],
-            j_left: [m.j_left[0][l], m.j_left[1][l], m.j_left[2][l]],
         }
     }
 
-    /// Lane `l` of `f` (pulled populations) and cell `c` of `src` (what was
-    /// left there), summed over i in ascending order as [`lane_moments`] does.
+    /// Lane `l` of `f` (pulled populations), summed over i in ascending
+    /// order as [`lane_moments`] does.
     #[inline(always)]
-    fn of_cell<T: Real>(f: &[[T; LANES]; Q], src: &[T], ncells: usize, c: usize, l: usize) -> CellMoments {
-        let (mut drho, mut j, mut j_left) = (0.0, [0.0; 3], [0.0; 3]);
+    fn of_cell<T: Real>(f: &[[T; LANES]; Q], l: usize) -> CellMoments {
+        let (mut drho, mut j) = (0.0, [0.0; 3]);
         for i in 0..Q {
             let g = f[i][l].to_f64();
             drho += g;
-            let left = src[i * ncells + c].to_f64();
             for a in 0..3 {
                 j[a] += E[i][a] as f64 * g;
-                j_left[a] += E[i][a] as f64 * left;
             }
         }
-        CellMoments { drho, j, j_left }
+        CellMoments { drho, j }
     }
 }
 
-/// [`CellMoments::of_cell`] for lanes 0..n of a chunk whose lane 0 is cell
-/// `own`, vectorised over the lanes; lanes from n on are left as they are.
-/// Lanes go in blocks of [`MOMENT_BLOCK`] whose seven sums stay in registers
+/// [`CellMoments::of_cell`] for lanes 0..n of a chunk, vectorised over the
+/// lanes; lanes from n on are left as they are.
+/// Lanes go in blocks of [`MOMENT_BLOCK`] whose four sums stay in registers
 /// over the 19 directions (summing all lanes direction by direction loaded
 /// and stored every sum 19 times); each lane's sums take the same operations
 /// in the same order either way. A block's sums are then added to `m`, so
 /// the result is a lane's plain sum only for a zeroed `m` (as the caller
 /// passes it; a sum from +0.0 is never −0.0, so adding it to +0.0 is exact).
 #[inline(always)]
-fn lane_moments<T: Real>(f: &[[T; LANES]; Q], src: &[T], ncells: usize, own: usize, n: usize, m: &mut LaneMoments) {
+fn lane_moments<T: Real>(f: &[[T; LANES]; Q], n: usize, m: &mut LaneMoments) {
     const B: usize = MOMENT_BLOCK;
     let mut l0 = 0;
     while l0 + B <= n {
-        let (mut drho, mut j, mut j_left) = ([0.0; B], [[0.0; B]; 3], [[0.0; B]; 3]);
+        let (mut drho, mut j) = ([0.0; B], [[0.0; B]; 3]);
         for i in 0..Q {
             let e = E[i].map(|x| x as f64);
             let pulled: &[T; B] = f[i][l0..l0 + B].try_into().expect("a block of lanes");
-            let start = i * ncells + own + l0;
-            let left: &[T; B] = src[start..start + B].try_into().expect("a block of lanes");
             for b in 0..B {
                 let g = pulled[b].to_f64();
                 drho[b] += g;
-                let gl = left[b].to_f64();
                 for a in 0..3 {
                     j[a][b] += e[a] * g;
-                    j_left[a][b] += e[a] * gl;
                 }
             }
         }
@@ -1561,7 +1550,6 @@ fn lane_moments<T: Real>(f: &[[T; LANES]; Q], src: &[T], ncells: usize, own: usi
             m.drho[l0 + b] += drho[b];
             for a in 0..3 {
                 m.j[a][l0 + b] += j[a][b];
-                m.j_left[a][l0 + b] += j_left[a][b];
             }
         }
         l0 += B;
@@ -1571,10 +1559,8 @@ fn lane_moments<T: Real>(f: &[[T; LANES]; Q], src: &[T], ncells: usize, own: usi
         for l in l0..n {
             let g = f[i][l].to_f64();
             m.drho[l] += g;
-            let gl = src[i * ncells + own + l].to_f64();
             for a in 0..3 {
                 m.j[a][l] += e[a] * g;
-                m.j_left[a][l] += e[a] * gl;
             }
         }
     }
@@ -2023,7 +2009,6 @@ mod isa_tests {
 
     #[test]
     fn lane_moments_match_one_cell_at_a_time_bit_for_bit() {
-        let (ncells, own) = (3 * LANES, LANES + 5);
         let mut x = 0x9E37_79B9_u64;
         let mut noise = || {
             x ^= x << 13;
@@ -2031,19 +2016,17 @@ mod isa_tests {
             x ^= x << 17;
             (x % 2001) as f32 * 1e-4 - 0.1
         };
-        let src: Vec<f32> = (0..Q * ncells).map(|_| noise()).collect();
         let mut f = [[0.0f32; LANES]; Q];
         f.iter_mut().flatten().for_each(|g| *g = noise());
         // Whole register blocks, a ragged last block, a full chunk, fewer lanes than a block.
         for n in [100, 103, LANES, 3] {
-            let mut m = LaneMoments { drho: [0.0; LANES], j: [[0.0; LANES]; 3], j_left: [[0.0; LANES]; 3] };
-            lane_moments(&f, &src, ncells, own, n, &mut m);
+            let mut m = LaneMoments { drho: [0.0; LANES], j: [[0.0; LANES]; 3] };
+            lane_moments(&f, n, &mut m);
             for l in 0..n {
-                let (a, b) = (CellMoments::of_lane(&m, l), CellMoments::of_cell(&f, &src, ncells, own + l, l));
+                let (a, b) = (CellMoments::of_lane(&m, l), CellMoments::of_cell(&f, l));
                 assert_eq!(a.drho.to_bits(), b.drho.to_bits(), "n {n} lane {l}");
                 for d in 0..3 {
                     assert_eq!(a.j[d].to_bits(), b.j[d].to_bits(), "n {n} lane {l}");
-                    assert_eq!(a.j_left[d].to_bits(), b.j_left[d].to_bits(), "n {n} lane {l}");
                 }
             }
             assert!(m.drho[n..].iter().all(|&x| x == 0.0), "lanes from n on are left as they are");
