@@ -104,14 +104,15 @@ fn default_gain_packing_drag_against_ergun_in_the_papers_water_matches_the_study
 }
 
 /// One sphere (ρ_s/ρ_L = 2.6) settling from rest in a closed tank 10 D
-/// wide, at D/Δx = 4.17 in a viscous liquid at unbounded terminal Re 5
-/// (τ0 = 0.6) and 30 (τ0 = 0.517): terminal velocity against
+/// wide, at D/Δx = 4.17 in a viscous liquid at unbounded terminal Re 1
+/// (τ0 = 1), 5 (τ0 = 0.6) and 30 (τ0 = 0.517): terminal velocity against
 /// Schiller–Naumann times the tank's wall factor
 /// (`lbm_proc::validation::settling`; the factor is itself uncertain by
 /// 3–7 points, docs/coupling.md "Settling sphere"). Study (session 13,
-/// the surface force with the held liquid's inertia): Re 5, the covered
-/// fraction −2.1 %, the default +16.0 % (at τ0 = 0.6 its partly covered
-/// cells are pulled at the rate (τ0 − ½) allows); Re 30, the default
+/// the surface force with the held liquid's inertia): Re 1, the default
+/// +30.1 %; Re 5, the covered fraction −2.1 %, the default +16.0 % (at
+/// τ0 ≥ 0.6 its partly covered cells are pulled at the rate (τ0 − ½)
+/// allows, which a moving grain outruns); Re 30, the default
 /// +2.1 %, also within 5 % of the drag law. Each within 1 point of the
 /// study. And at terminal velocity the grain is given the forcing's
 /// reaction on average (surface force over reaction 1 within 1 %: the
@@ -122,6 +123,7 @@ fn settling_sphere_terminal_velocity_matches_the_study() {
     use lbm_proc::validation::settling::{settle, SettlingCase, SettlingLiquid};
     let viscous = SettlingLiquid::Viscous { velocity: 0.04 };
     let cases = [
+        (1.0, ForcingGain::default(), 0.301),
         (5.0, ForcingGain::CoveredFraction, -0.021),
         (5.0, ForcingGain::default(), 0.160),
         (30.0, ForcingGain::default(), 0.021),
