@@ -656,7 +656,9 @@ impl Coupling {
     /// [`Coupling::apply`]) from the one step that ran since.
     ///
     /// Spheres in parallel; each sums its own cells in covering order, so
-    /// the result does not depend on the thread count.
+    /// the result does not depend on the thread count. Called again before
+    /// the next step, it returns the same forces (the held liquid of step 6
+    /// is counted once).
     pub fn collect<T: Real>(&mut self, fluid: &Fluid<T>) -> Result<&[SphereForce], CouplingError> {
         let applied = fluid.applied_forcing();
         if self.applied_at != Some((fluid.steps().wrapping_sub(1), fluid.forcing_version())) {
@@ -667,6 +669,10 @@ impl Coupling {
         let units = &self.units;
         let (crossings, starts, slots, row_base) = (&self.crossings, &self.sphere_start, &self.slots, &self.row_base);
         let placed = &self.placed;
+        // Asked again for the same step: the held liquid has moved on to it.
+        if self.held_at == Some(fluid.steps()) {
+            return Ok(&self.results);
+        }
         // The liquid held after the previous step is this step's start only
         // if that step was collected for the same spheres.
         let continues = self.held_at == Some(fluid.steps().wrapping_sub(1)) && self.held.len() == self.results.len();
