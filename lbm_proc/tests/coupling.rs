@@ -318,6 +318,7 @@ fn each_exchange_the_liquid_outside_the_grains_loses_what_they_gain() {
     for step in 0..60 {
         let spheres = three_spheres(step as f64 * 0.05);
         let forces = coupling.step(&mut fluid, &spheres).expect("valid spheres").to_vec();
+        assert_eq!(coupling.collect(&fluid).expect("the same step"), &forces[..], "asked twice, the same forces");
         let after = outside(&fluid);
         let covered_liquid: f64 = forces.iter().map(|f| f.liquid_mass).sum();
         if let Some(before) = before {
