@@ -1499,10 +1499,7 @@ struct CellMoments {
 
 impl CellMoments {
     fn of_lane(m: &LaneMoments, l: usize) -> CellMoments {
-        CellMoments {
-            drho: m.drho[l],
-            j: [m.j[0][l], m.j[1][l], m.j[2][l]],
-        }
+        CellMoments { drho: m.drho[l], j: [m.j[0][l], m.j[1][l], m.j[2][l]] }
     }
 
     /// Lane `l` of `f` (pulled populations), summed over i in ascending

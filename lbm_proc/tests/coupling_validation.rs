@@ -143,7 +143,11 @@ fn settling_sphere_terminal_velocity_matches_the_study() {
         );
         assert!((r.error - measured).abs() < 0.01, "Re {re} {name}: {:+.4}, study {measured:+.3}", r.error);
         assert!(r.trend.abs() < 0.01, "Re {re} {name}: still accelerating in the window ({:+.3})", r.trend);
-        assert!((r.surface_over_forcing - 1.0).abs() < 0.01, "Re {re} {name}: surface/reaction {}", r.surface_over_forcing);
+        assert!(
+            (r.surface_over_forcing - 1.0).abs() < 0.01,
+            "Re {re} {name}: surface/reaction {}",
+            r.surface_over_forcing
+        );
         if re == 30.0 {
             assert!(r.error.abs() < 0.05, "Re 30 {name}: {:+.4} against the drag law", r.error);
         }
