@@ -6,19 +6,25 @@
 # usage: bash bench/seeds.sh [OUT_DIR] [KIND] [CASES] [SEEDS]
 #   KIND: dry (default) or sat; CASES default "030 040 050 060 070";
 #   SEEDS default "1 2 3". A dry case takes ~1 min, a saturated one 10-25.
+#   BIN=DIR runs the coupler (and the dem_proc/lbm_proc beside it) from DIR
+#   instead of building target/release, so a long campaign survives rebuilds.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/seeds}
 kind=${2:-dry}
 cases=${3:-"030 040 050 060 070"}
 seeds=${4:-"1 2 3"}
-cargo build --release -p coupler -p dem_proc -p lbm_proc
+bin=${BIN:-}
+if [ -z "$bin" ]; then
+  cargo build --release -p coupler -p dem_proc -p lbm_proc
+  bin=target/release
+fi
 mkdir -p "$out"
 for h in $cases; do
   for s in $seeds; do
     dir="$out/${kind}_h$h/seed$s"
     mkdir -p "$out/${kind}_h$h"
-    [ -f "$dir/summary.json" ] || target/release/coupler run "scenes/ceccato2020/${kind}_h$h.toml" --quiet \
+    [ -f "$dir/summary.json" ] || "$bin/coupler" run "scenes/ceccato2020/${kind}_h$h.toml" --quiet \
       --out "$dir" --set "particles[0].packing.seed=$s" 2> "$dir.log"
   done
 done

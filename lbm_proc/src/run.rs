@@ -21,7 +21,7 @@ use schemas::scene::Scene;
 use schemas::summary::{ExchangeDetails, LbmDetails, RunSummary, Throughput};
 
 use crate::coupling::{Coupling, CouplingError};
-use crate::fluid::{flags, Fluid, FluidState};
+use crate::fluid::{flags, Fluid, FluidState, Sample};
 use crate::grains::GrainForcing;
 use crate::lattice::CS2;
 use crate::setup::{LbmSetup, SetupError};
@@ -438,6 +438,60 @@ fn record_state(frames: &mut Frames, fluid: &Fluid<f32>, time: f64, gates_remove
     Ok(())
 }
 
+/// Bytes per cell of `/lbm/slice`: four little-endian f32 fields.
+const SLICE_CELL_BYTES: usize = 16;
+
+/// One cell of the recorded slice, SI except `speed` (lattice units).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct SliceCell {
+    fill: f64,
+    speed: f64,
+    /// Gauge pressure c_s² (ρ − 1) ρ_L (Δx/Δt)², Pa: zero at the free
+    /// surface, where the interface cells are rebuilt at ρ = 1.
+    pressure: f64,
+    /// `pressure` less the hydrostatic pressure of the liquid above the
+    /// cell in its own vertical run of liquid cells, Pa: the pore pressure
+    /// the flow adds, the quantity that lifts grains (positive) or holds
+    /// them (negative).
+    excess_pressure: f64,
+}
+
+/// The slice's values up one vertical column of cells (`samples[k]` is
+/// cell k from the floor; `None` outside the lattice).
+///
+/// Each vertical run of liquid cells (fluid or interface) has its surface
+/// at the top cell's bottom face plus its fill times Δx; the hydrostatic
+/// pressure of a cell in the run is −ρ_L g_z (z_surface − z_centre), with
+/// `weight_z` = ρ_L g_z in N/m³ (zero when the lattice leaves the liquid's
+/// weight out, `lbm.hydrostatics = "buoyancy"`, whose pressure is all
+/// excess). Gas and wall cells get zeros. A run closed by a wall above is
+/// measured to that wall's face.
+fn slice_column(samples: &[Option<Sample>], cs2: f64, to_pascal: f64, weight_z: f64, dx: f64) -> Vec<SliceCell> {
+    let liquid = |k: usize| samples[k].is_some_and(|s| flags::is_liquid(s.flag));
+    let mut cells = vec![SliceCell::default(); samples.len()];
+    let mut k = 0;
+    while k < samples.len() {
+        if !liquid(k) {
+            k += 1;
+            continue;
+        }
+        let start = k;
+        while k < samples.len() && liquid(k) {
+            k += 1;
+        }
+        let top = k - 1;
+        let surface = top as f64 + samples[top].map_or(0.0, |s| s.fill);
+        for (c, cell) in cells.iter_mut().enumerate().take(k).skip(start) {
+            let s = samples[c].expect("a liquid cell was sampled");
+            let speed = s.velocity.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let pressure = cs2 * (s.density - 1.0) * to_pascal;
+            let hydrostatic = -weight_z * (surface - (c as f64 + 0.5)) * dx;
+            *cell = SliceCell { fill: s.fill, speed, pressure, excess_pressure: pressure - hydrostatic };
+        }
+    }
+    cells
+}
+
 #[allow(clippy::too_many_arguments)]
 fn record_frame(
     frames: &mut Frames,
@@ -501,18 +555,23 @@ fn record_frame(
         };
         rec.log(ch.surface, t, &cloud)?;
 
-        // Mid-width x–z slice: fill (0 in gas and walls) and speed, rows along z.
+        // Mid-width x–z slice, rows along z: fill, speed, gauge pressure and
+        // its excess over the liquid column above (docs/recording.md).
         let nz = setup.dims[2];
         let j = ny / 2;
-        let mut grid = Vec::with_capacity(nx * nz * 8);
-        for k in 0..nz {
-            for i in 0..nx {
-                let (fill, speed) = match fluid.sample([i, j, k]) {
-                    Ok(s) => (s.fill, s.velocity.iter().map(|v| v * v).sum::<f64>().sqrt()),
-                    Err(_) => (0.0, 0.0),
-                };
-                for v in [fill, units.velocity_to_si(speed)] {
-                    grid.extend_from_slice(&(v as f32).to_le_bytes());
+        let to_pascal = setup.density * (dx / units.dt()).powi(2);
+        let gravity_z = units.acceleration_to_si(setup.params.acceleration[2]);
+        let mut column = Vec::with_capacity(nz);
+        let mut grid = vec![0u8; nx * nz * SLICE_CELL_BYTES];
+        for i in 0..nx {
+            column.clear();
+            column.extend((0..nz).map(|k| fluid.sample([i, j, k]).ok()));
+            let cells = slice_column(&column, CS2, to_pascal, setup.density * gravity_z, dx);
+            for (k, cell) in cells.into_iter().enumerate() {
+                let at = (k * nx + i) * SLICE_CELL_BYTES;
+                let values = [cell.fill, units.velocity_to_si(cell.speed), cell.pressure, cell.excess_pressure];
+                for (f, v) in values.into_iter().enumerate() {
+                    grid[at + 4 * f..at + 4 * f + 4].copy_from_slice(&(v as f32).to_le_bytes());
                 }
             }
         }
@@ -527,9 +586,14 @@ fn record_frame(
             }),
             column_count: nx as u32,
             cell_size: Some(Vector2 { x: dx, y: dx }),
-            row_stride: (nx * 8) as u32,
-            cell_stride: 8,
-            fields: vec![f32_field("fill", 0), f32_field("speed", 4)],
+            row_stride: (nx * SLICE_CELL_BYTES) as u32,
+            cell_stride: SLICE_CELL_BYTES as u32,
+            fields: vec![
+                f32_field("fill", 0),
+                f32_field("speed", 4),
+                f32_field("pressure", 8),
+                f32_field("excess_pressure", 12),
+            ],
             data: grid.into(),
         };
         rec.log(ch.slice, t, &slice)?;
@@ -555,4 +619,49 @@ fn record_frame(
     }
     frames.seconds += started.elapsed().as_secs_f64();
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn liquid(fill: f64, density: f64) -> Option<Sample> {
+        let flag = if fill < 1.0 { flags::INTERFACE } else { flags::FLUID };
+        Some(Sample { flag, fill, density, velocity: [0.0; 3] })
+    }
+
+    const GAS: Option<Sample> = Some(Sample { flag: flags::GAS, fill: 0.0, density: 0.0, velocity: [0.0; 3] });
+
+    /// A resting layer 3.4 cells deep with the lattice's hydrostatic
+    /// densities (ρ = 1 + 3 g d in lattice units) has the hydrostatic gauge
+    /// pressure and no excess; a droplet above it is measured from its own
+    /// surface, not from the layer's.
+    #[test]
+    fn slice_pressure_is_hydrostatic_at_rest_and_excess_is_what_exceeds_it() {
+        let (dx, dt, rho_l, g): (f64, f64, f64, f64) = (1e-3, 1e-4, 1000.0, 9.81);
+        let g_lattice = g * dt * dt / dx;
+        let to_pascal = rho_l * (dx / dt).powi(2);
+        // Depth of cell k's centre below the surface at 3.4 cells.
+        let density = |depth: f64| 1.0 + g_lattice * depth / CS2;
+        let mut column: Vec<Option<Sample>> = (0..3).map(|k| liquid(1.0, density(3.4 - (k as f64 + 0.5)))).collect();
+        column.push(liquid(0.4, 1.0));
+        column.push(GAS);
+        column.push(liquid(0.5, 1.0 + 0.001)); // a droplet with a 0.001 density excess
+        column.push(GAS);
+        let cells = slice_column(&column, CS2, to_pascal, -rho_l * g, dx);
+        for (k, cell) in cells.iter().enumerate().take(3) {
+            let depth = (3.4 - (k as f64 + 0.5)) * dx;
+            assert!((cell.pressure - rho_l * g * depth).abs() < 1e-9, "cell {k}: {cell:?}");
+            assert!(cell.excess_pressure.abs() < 1e-9, "cell {k}: {cell:?}");
+        }
+        // The interface cell's centre lies 0.1 cells above its surface.
+        assert!((cells[3].excess_pressure - rho_l * g * 0.1 * dx).abs() < 1e-9);
+        assert_eq!(cells[4], SliceCell::default());
+        let droplet = CS2 * 0.001 * to_pascal;
+        assert!((cells[5].pressure - droplet).abs() < 1e-9);
+        assert!((cells[5].excess_pressure - droplet).abs() < 1e-9, "droplet's own surface: at its centre");
+        // Without the liquid's weight on the lattice the pressure is all excess.
+        let buoyancy = slice_column(&column, CS2, to_pascal, 0.0, dx);
+        assert!(buoyancy.iter().all(|c| c.pressure == c.excess_pressure));
+    }
 }

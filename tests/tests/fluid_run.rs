@@ -76,11 +76,24 @@ fn water_recording_reads_back() {
             "/lbm/slice" => {
                 let grid = foxglove::schemas::Grid::decode(&msg.data[..]).unwrap();
                 assert_eq!(grid.column_count, 100);
-                assert_eq!(grid.data.len(), 100 * 40 * 8, "fill and speed for 100 x 40 cells");
+                assert_eq!(grid.data.len(), 100 * 40 * 16, "fill, speed, pressure, excess for 100 x 40 cells");
+                let field =
+                    |cell: &[u8], f: usize| f32::from_le_bytes(cell[4 * f..4 * f + 4].try_into().unwrap()) as f64;
                 // Fill levels lie in [0, 1] (walls have none).
-                for cell in grid.data.chunks(8) {
-                    let fill = f32::from_le_bytes(cell[0..4].try_into().unwrap());
+                for cell in grid.data.chunks(16) {
+                    let fill = field(cell, 0);
                     assert!((-0.01..=1.01).contains(&fill), "fill {fill}");
+                }
+                if grids == 0 {
+                    // The block at rest: the floor cells (centre 1 mm up, under
+                    // 0.06 m less half a top cell of water: 29.5 cells - 0.5 of
+                    // 2 mm) carry rho g (0.059 - 0.001) = 569 Pa; the excess over
+                    // the column above is zero to the f32 round-off of 1 + 3 g d.
+                    let floor = field(&grid.data[0..16], 2);
+                    assert!((floor - 1000.0 * 9.81 * 0.058).abs() < 0.01 * 569.0, "floor pressure {floor} Pa");
+                    for cell in grid.data.chunks(16) {
+                        assert!(field(cell, 3).abs() < 0.5, "excess at rest {} Pa", field(cell, 3));
+                    }
                 }
                 grids += 1;
             }
