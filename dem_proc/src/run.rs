@@ -624,6 +624,7 @@ fn record_frame(
         }
         let share = coordination_shares(&world.coordination);
         let share = |k: usize| share[k];
+        let (momentum, fluid_force) = (world.momentum(), world.external_force_total());
         let metrics = DemMetrics {
             t,
             t_norm: t / t_ref,
@@ -642,6 +643,12 @@ fn record_frame(
             coordination_4: share(4),
             coordination_5: share(5),
             coordination_6_or_more: share(6),
+            momentum_x: momentum[0],
+            momentum_z: momentum[2],
+            fluid_force_x: fluid_force[0],
+            fluid_force_z: fluid_force[2],
+            fluid_impulse_x: world.external_impulse[0],
+            fluid_impulse_z: world.external_impulse[2],
         };
         rec.log(ch.metrics, t, &metrics)?;
         if with_state {

@@ -191,6 +191,16 @@ pub struct World {
     external_force: Vec<[f64; 3]>,
     external_torque: Vec<[f64; 3]>,
     has_external_load: bool,
+    /// Σ of `external_force` over the grains, N; `None` after a load
+    /// changed until the next step sums it again.
+    external_total: Option<[f64; 3]>,
+    /// The Σ external force inside the grains' stored forces (the last
+    /// force sum), which the next step's first half-kick uses.
+    external_in_forces: [f64; 3],
+    /// ∫ Σ external force dt since this world was made, N s: the momentum
+    /// the liquid gave the grains. A diagnostic, not part of the state (a
+    /// resumed run counts from its resume).
+    pub external_impulse: [f64; 3],
     pub numerics: Numerics,
     pub time: f64,
     pub step_count: u64,
@@ -260,6 +270,9 @@ impl World {
             external_force: vec![[0.0; 3]; n],
             external_torque: vec![[0.0; 3]; n],
             has_external_load: false,
+            external_total: None,
+            external_in_forces: [0.0; 3],
+            external_impulse: [0.0; 3],
             numerics,
             time: 0.0,
             step_count: 0,
@@ -295,6 +308,20 @@ impl World {
         self.external_force[slot] = force;
         self.external_torque[slot] = torque;
         self.has_external_load = true;
+        self.external_total = None;
+    }
+
+    /// Σ over the grains of the external force held now, N (zero if none).
+    pub fn external_force_total(&self) -> [f64; 3] {
+        self.external_total.unwrap_or_else(|| {
+            self.external_force.iter().fold([0.0; 3], |a, f| [a[0] + f[0], a[1] + f[1], a[2] + f[2]])
+        })
+    }
+
+    /// Σ m v over the grains, kg m/s.
+    pub fn momentum(&self) -> [f64; 3] {
+        let g = &self.grains;
+        (0..g.len()).fold([0.0; 3], |a, p| [0, 1, 2].map(|k| a[k] + g.mass[p] * g.vel[p][k]))
     }
 
     /// Chooses the pair kernel's instruction set (for tests and benchmarks:
@@ -400,6 +427,17 @@ impl World {
         st.update_neighbours += (t2 - t1).as_secs_f64();
         st.compute_contact_forces += (t3 - t2).as_secs_f64();
         st.sum_and_kick += (t4 - t3).as_secs_f64();
+        if self.has_external_load {
+            // Velocity Verlet kicks half a step with the force of the last
+            // sum and half with this one's: a load set between steps counts
+            // half its old and half its new value, as the velocities do.
+            let total = self.external_force_total();
+            self.external_total = Some(total);
+            let half = 0.5 * self.numerics.dt;
+            let before = self.external_in_forces;
+            self.external_impulse = [0, 1, 2].map(|k| self.external_impulse[k] + half * (before[k] + total[k]));
+            self.external_in_forces = total;
+        }
         self.time += self.numerics.dt;
         self.step_count += 1;
     }
@@ -413,6 +451,7 @@ impl World {
         self.compute_contact_forces();
         self.sum_forces_only();
         self.numerics.dt = dt;
+        self.external_in_forces = if self.has_external_load { self.external_force_total() } else { [0.0; 3] };
     }
 
     fn release_gates(&mut self) {

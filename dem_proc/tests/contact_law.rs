@@ -245,3 +245,39 @@ fn elastic_frictionless_gas_conserves_energy() {
     assert!(collisions > 1000, "too few contacts to test anything: {collisions}");
     assert!((e1 - e0).abs() / e0 < 5e-3, "energy {e0} -> {e1}");
 }
+
+/// Newton's second law for the whole set: with no gravity and no walls the
+/// contact forces cancel in pairs, so the grains' momentum changes by
+/// exactly the impulse of the external loads, which `external_impulse`
+/// must count as the integrator applies it (half the old and half the new
+/// load in a step where it changes), here through a collision and three
+/// load changes.
+#[test]
+fn momentum_gained_equals_the_counted_external_impulse() {
+    let mut g = Grains::default();
+    g.push([0.0, 0.0, -R - 1e-5], [0.0, 0.0, 0.05], R, RHO);
+    g.push([0.0, 0.0, R + 1e-5], [0.0, 0.0, -0.05], R, RHO);
+    let dt = 2e-6;
+    let mut w = world(g, vec![], law(0.5, 0.5, 0.05), [0.0; 3], dt);
+    let p0 = w.momentum();
+    let loads = [[1e-4, 0.0, 2e-4], [-3e-4, 1e-4, 5e-5], [2e-5, -2e-5, -4e-4]];
+    for (change, load) in loads.iter().enumerate() {
+        w.set_external_load(0, *load, [0.0; 3]);
+        w.set_external_load(1, [0.5 * load[2], load[0], -load[1]], [0.0; 3]);
+        for _ in 0..(200 + 37 * change) {
+            w.step();
+        }
+    }
+    let gained = w.momentum();
+    let scale = 4e-4 * 400.0 * dt;
+    for k in 0..3 {
+        let d = gained[k] - p0[k] - w.external_impulse[k];
+        assert!(
+            d.abs() < 1e-9 * scale,
+            "axis {k}: momentum change {} vs impulse {}",
+            gained[k] - p0[k],
+            w.external_impulse[k]
+        );
+    }
+    assert!(w.external_impulse[0].abs() > 0.01 * scale, "the loads gave momentum along x");
+}

@@ -30,6 +30,17 @@ pub struct DemMetrics {
     pub coordination_4: f64,
     pub coordination_5: f64,
     pub coordination_6_or_more: f64,
+    /// Σ m v of the grains along x and z, kg m/s.
+    pub momentum_x: f64,
+    pub momentum_z: f64,
+    /// Σ of the hydrodynamic loads the grains hold now along x and z, N
+    /// (zero in a dry run; buoyancy included).
+    pub fluid_force_x: f64,
+    pub fluid_force_z: f64,
+    /// ∫ of that sum over time since the run started, N s: the momentum the
+    /// liquid has given the grains.
+    pub fluid_impulse_x: f64,
+    pub fluid_impulse_z: f64,
 }
 
 /// `/lbm/metrics`, one per recorded frame.
