@@ -494,6 +494,7 @@ fn record_frame(
         frames.liquid_front.push(FrontSample { t, t_norm: t / t_ref, x: m.liquid_front, x_norm: norm(m.liquid_front) });
     }
     let ke = (s.set.kinetic_energy(), l.set.kinetic_energy());
+    let grid_ke = mpm.grid_kinetic_energy();
     frames.max_kinetic_energy = frames.max_kinetic_energy.max(ke.0 + ke.1);
     frames.max_fluidised = frames.max_fluidised.max(m.fluidised_fraction);
     let max_p = mpm.state.liquid.pressure.iter().cloned().fold(0.0, f64::max);
@@ -531,6 +532,8 @@ fn record_frame(
             solid_mass: s.set.total_mass(),
             liquid_mass: l.set.total_mass(),
             point_updates_per_s: rate,
+            kinetic_energy_solid_grid: grid_ke.0,
+            kinetic_energy_liquid_grid: grid_ke.1,
         };
         rec.log(ch.metrics, t, &metrics)?;
     }

@@ -357,6 +357,29 @@ impl Mpm {
         }
     }
 
+    /// Kinetic energy of the solid and of the liquid momenta as the grid
+    /// holds them, Σ_I |p_I|²/(2 m_I) over the nodes, J/m, from the map at
+    /// the start of the last step (fixities not applied). Never above the
+    /// points' own (Jensen); the difference is motion the grid cannot see
+    /// (the null space of the map, which FLIP keeps and nothing acts on).
+    pub fn grid_kinetic_energy(&self) -> (f64, f64) {
+        let row = self.grid.node_dims()[0];
+        let tol = self.mass_tolerance;
+        let (mut solid, mut liquid) = (0.0, 0.0);
+        for r in self.rows.0..=self.rows.1 {
+            for c in self.columns.0..=self.columns.1 {
+                let Some(s) = self.sums.get(r * row + c) else { continue };
+                if s.mass_s > tol {
+                    solid += 0.5 * (s.momentum_s[0].powi(2) + s.momentum_s[1].powi(2)) / s.mass_s;
+                }
+                if s.mass_l > tol {
+                    liquid += 0.5 * (s.momentum_l[0].powi(2) + s.momentum_l[1].powi(2)) / s.mass_l;
+                }
+            }
+        }
+        (solid, liquid)
+    }
+
     // -- stage 1 ---------------------------------------------------------
 
     /// Stencils, elements and bins of both point sets; the node range touched.

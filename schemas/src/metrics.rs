@@ -148,4 +148,9 @@ pub struct MpmMetrics {
     pub liquid_mass: f64,
     /// Material-point updates per second since the last frame (both phases).
     pub point_updates_per_s: f64,
+    /// Kinetic energy of the solid and liquid momenta mapped to the grid at
+    /// the start of the last step, J/m: the part of the points' kinetic
+    /// energy the grid carries; the rest is invisible to it.
+    pub kinetic_energy_solid_grid: f64,
+    pub kinetic_energy_liquid_grid: f64,
 }
