@@ -31,6 +31,8 @@ for run in sys.argv[1:]:
             rows.append(m)
     # Grains' mass from the kinetic energy is not recorded: use the packing's.
     n, d = summary["dem"]["particles"], scene["particles"][0]["diameter"]
+    if scene["particles"][0].get("diameter_spread", 0.0) or len(scene["particles"]) > 1:
+        sys.exit(f"{run}: grains of one size only (the mass is n rho pi D^3/6)")
     mass = n * rho_s * 3.141592653589793 / 6.0 * d**3
     scale = mass * (g_eff * h0) ** 0.5
     peak = max(rows, key=lambda m: m.momentum_x)

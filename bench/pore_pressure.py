@@ -40,14 +40,20 @@ with open(f"{run}/run.mcap", "rb") as f:
         else:
             clouds[message.log_time] = m
 
+skipped = 0
 print(f"{run}: t_ref = {t_ref:.4f} s; floor excess pore pressure u (Pa), sigma'_v (Pa), r_u = u/sigma'_v")
 print("| t/t_ref | " + " | ".join(f"x/L0 {a:g}–{b:g}: u, σ'v, r_u" for a, b in bins) + " |")
 print("|---|" + "---|" * len(bins))
 for time in sorted(slices):
-    grid, cloud = slices[time], clouds.get(time)
-    if cloud is None:
+    grid = slices[time]
+    # The DEM's frame nearest in time (both write at the scene's record_interval).
+    nearest = min(clouds, key=lambda c: abs(c - time), default=None)
+    if nearest is None or abs(nearest - time) > 1e6:  # more than 1 ms apart
+        skipped += 1
         continue
+    cloud = clouds[nearest]
     nx, dx, stride = grid.column_count, grid.cell_size.x, grid.cell_stride
+    x_grid = grid.pose.position.x - x0  # the slice's corner from the domain's
     assert stride == 16, "a recording with pressure fields (session 14 on)"
     floor = [struct.unpack_from("<4f", grid.data, i * stride) for i in range(nx)]
     weight = [0.0] * len(bins)
@@ -59,9 +65,11 @@ for time in sorted(slices):
                 weight[b] += (rho_s - rho_l) * 4.0 / 3.0 * 3.141592653589793 * r**3 * g
     cells = []
     for b, (lo, hi) in enumerate(bins):
-        us = [floor[i][3] for i in range(nx) if lo <= (i + 0.5) * dx / l0 < hi and floor[i][0] > 0.5]
+        us = [floor[i][3] for i in range(nx) if lo <= (x_grid + (i + 0.5) * dx) / l0 < hi and floor[i][0] > 0.5]
         u = sum(us) / len(us) if us else float("nan")
         sv = weight[b] / ((hi - lo) * l0 * width)
         cells.append(f"{u:7.1f}, {sv:6.1f}, {u / sv if sv > 1.0 else float('nan'):5.2f}")
     tn = time * 1e-9 / t_ref
     print(f"| {tn:5.2f} | " + " | ".join(cells) + " |")
+if skipped:
+    print(f"({skipped} slice frames had no DEM frame within 1 ms and were left out)")

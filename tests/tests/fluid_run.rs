@@ -89,6 +89,8 @@ fn water_recording_reads_back() {
                     // 0.06 m less half a top cell of water: 29.5 cells - 0.5 of
                     // 2 mm) carry rho g (0.059 - 0.001) = 569 Pa; the excess over
                     // the column above is zero to the f32 round-off of 1 + 3 g d.
+                    // (This checks the recording's units and surface rule; that the
+                    // lattice keeps rho g h at rest is lbm_proc/tests/free_surface.rs.)
                     let floor = field(&grid.data[0..16], 2);
                     assert!((floor - 1000.0 * 9.81 * 0.058).abs() < 0.01 * 569.0, "floor pressure {floor} Pa");
                     for cell in grid.data.chunks(16) {
