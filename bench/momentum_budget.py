@@ -9,7 +9,7 @@ M sqrt(g_eff H0), M the grains' mass, g_eff = g dry and g' saturated.
 
 usage: python3 bench/momentum_budget.py RUN_DIR [RUN_DIR ...]
 """
-import sys, tomllib
+import json, sys, tomllib
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
@@ -22,7 +22,6 @@ for run in sys.argv[1:]:
     saturated = scene["analysis"].get("condition") == "saturated"
     rho_l = scene["fluids"][0]["density"] if saturated else 0.0
     g_eff = g * (rho_s - rho_l) / rho_s
-    import json
     summary = json.load(open(f"{run}/summary.json"))
     rows = []
     with open(f"{run}/run.mcap", "rb") as f:

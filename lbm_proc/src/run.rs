@@ -456,8 +456,9 @@ struct SliceCell {
     excess_pressure: f64,
 }
 
-/// The slice's values up one vertical column of cells (`samples[k]` is
-/// cell k from the floor; `None` outside the lattice).
+/// The slice's values up one vertical column of cells into `cells`
+/// (`samples[k]` is cell k from the floor; `None` outside the lattice;
+/// both of one length).
 ///
 /// Each vertical run of liquid cells (fluid or interface) has its surface
 /// at the top cell's bottom face plus its fill times Δx; the hydrostatic
@@ -466,9 +467,9 @@ struct SliceCell {
 /// weight out, `lbm.hydrostatics = "buoyancy"`, whose pressure is all
 /// excess). Gas and wall cells get zeros. A run closed by a wall above is
 /// measured to that wall's face.
-fn slice_column(samples: &[Option<Sample>], cs2: f64, to_pascal: f64, weight_z: f64, dx: f64) -> Vec<SliceCell> {
+fn slice_column(samples: &[Option<Sample>], cs2: f64, to_pascal: f64, weight_z: f64, dx: f64, cells: &mut [SliceCell]) {
     let liquid = |k: usize| samples[k].is_some_and(|s| flags::is_liquid(s.flag));
-    let mut cells = vec![SliceCell::default(); samples.len()];
+    cells.fill(SliceCell::default());
     let mut k = 0;
     while k < samples.len() {
         if !liquid(k) {
@@ -489,7 +490,6 @@ fn slice_column(samples: &[Option<Sample>], cs2: f64, to_pascal: f64, weight_z: 
             *cell = SliceCell { fill: s.fill, speed, pressure, excess_pressure: pressure - hydrostatic };
         }
     }
-    cells
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -562,12 +562,13 @@ fn record_frame(
         let to_pascal = setup.density * (dx / units.dt()).powi(2);
         let gravity_z = units.acceleration_to_si(setup.params.acceleration[2]);
         let mut column = Vec::with_capacity(nz);
+        let mut cells = vec![SliceCell::default(); nz];
         let mut grid = vec![0u8; nx * nz * SLICE_CELL_BYTES];
         for i in 0..nx {
             column.clear();
             column.extend((0..nz).map(|k| fluid.sample([i, j, k]).ok()));
-            let cells = slice_column(&column, CS2, to_pascal, setup.density * gravity_z, dx);
-            for (k, cell) in cells.into_iter().enumerate() {
+            slice_column(&column, CS2, to_pascal, setup.density * gravity_z, dx, &mut cells);
+            for (k, cell) in cells.iter().enumerate() {
                 let at = (k * nx + i) * SLICE_CELL_BYTES;
                 let values = [cell.fill, units.velocity_to_si(cell.speed), cell.pressure, cell.excess_pressure];
                 for (f, v) in values.into_iter().enumerate() {
@@ -648,7 +649,8 @@ mod tests {
         column.push(GAS);
         column.push(liquid(0.5, 1.0 + 0.001)); // a droplet with a 0.001 density excess
         column.push(GAS);
-        let cells = slice_column(&column, CS2, to_pascal, -rho_l * g, dx);
+        let mut cells = vec![SliceCell::default(); column.len()];
+        slice_column(&column, CS2, to_pascal, -rho_l * g, dx, &mut cells);
         for (k, cell) in cells.iter().enumerate().take(3) {
             let depth = (3.4 - (k as f64 + 0.5)) * dx;
             assert!((cell.pressure - rho_l * g * depth).abs() < 1e-9, "cell {k}: {cell:?}");
@@ -661,7 +663,7 @@ mod tests {
         assert!((cells[5].pressure - droplet).abs() < 1e-9);
         assert!((cells[5].excess_pressure - droplet).abs() < 1e-9, "droplet's own surface: at its centre");
         // Without the liquid's weight on the lattice the pressure is all excess.
-        let buoyancy = slice_column(&column, CS2, to_pascal, 0.0, dx);
-        assert!(buoyancy.iter().all(|c| c.pressure == c.excess_pressure));
+        slice_column(&column, CS2, to_pascal, 0.0, dx, &mut cells);
+        assert!(cells.iter().all(|c| c.pressure == c.excess_pressure));
     }
 }
