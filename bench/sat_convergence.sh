@@ -10,12 +10,19 @@
 #   CASES: any of dx833 dx600 dx500 dx417 r30 r15 nte (default: all but
 #   dx417 and nte); nte is dx600 with coupling.forcing_gain =
 #   "noble_torczynski_effective" (docs/coupling.md, "Choosing the forcing gain")
+#   BIN=DIR runs the coupler (and the dem_proc/lbm_proc beside it) from DIR
+#   instead of building target/release, so a long campaign survives rebuilds;
+#   a case whose summary.json exists is not rerun, only reported.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/sat_convergence}
 cases=${2:-"dx833 dx600 dx500 r30 r15"}
 end=${3:-0.4}
-cargo build --release -p coupler -p dem_proc -p lbm_proc
+bin=${BIN:-}
+if [ -z "$bin" ]; then
+  cargo build --release -p coupler -p dem_proc -p lbm_proc
+  bin=target/release
+fi
 mkdir -p "$out"
 # name: spacing (m), time step (s), ratio. dx divides 0.05, 0.70 and 0.12 m.
 declare -A spacing=([dx833]=8.3333333333333333e-4 [dx600]=6.0e-4 [dx500]=5.0e-4 [dx417]=4.1666666666666667e-4 [r30]=6.0e-4 [r15]=6.0e-4 [nte]=6.0e-4)
@@ -25,7 +32,7 @@ printf '%-6s %6s %10s %5s %10s %8s %s\n' case D/dx dt ratio cells wall_s "front@
 for c in $cases; do
   dx=${spacing[$c]}
   dt=$(python3 -c "print(8.0e-5 * $dx / 6.0e-4)")
-  target/release/coupler run scenes/ceccato2020/sat_h060.toml --quiet --out "$out/$c" \
+  [ -f "$out/$c/summary.json" ] || "$bin/coupler" run scenes/ceccato2020/sat_h060.toml --quiet --out "$out/$c" \
     --set lbm.spacing="$dx" --set lbm.time_step="$dt" --set coupling.ratio="${ratio[$c]}" \
     --set output.end_time="$end" --set output.stop_at_rest=false \
     --set coupling.forcing_gain="${gain[$c]:-noble_torczynski}" 2> "$out/$c.log"
