@@ -534,6 +534,10 @@ fn record_frame(
             point_updates_per_s: rate,
             kinetic_energy_solid_grid: grid_ke.0,
             kinetic_energy_liquid_grid: grid_ke.1,
+            potential_energy_solid: s.set.potential_energy(mpm.params.gravity, mpm.grid.origin),
+            potential_energy_liquid: l.set.potential_energy(mpm.params.gravity, mpm.grid.origin),
+            wall_normal_load: mpm.wall_forces.normal_load,
+            wall_friction_force: mpm.wall_forces.friction,
         };
         rec.log(ch.metrics, t, &metrics)?;
     }

@@ -3,7 +3,7 @@
 //! gates, and the initial stresses (docs/mpm.md, "Gravity phase and
 //! initial stresses").
 
-use schemas::scene::{Face, InitialStress, PackingSpec, Scene};
+use schemas::scene::{Face, InitialStress, MpmFloor, PackingSpec, Scene};
 
 use crate::drag::DragLaw;
 use crate::grid::{Grid, GHOST};
@@ -69,6 +69,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         cavitation: spec.cavitation_threshold,
         max_porosity: spec.max_porosity,
         damping: spec.damping,
+        wall_friction: spec.wall_friction,
         free_surface_fill: spec.free_surface_fill,
         pic_fraction: spec.pic_fraction,
         xpic_order: spec.xpic_order,
@@ -150,9 +151,13 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         }
     }
 
-    // Fixities: ghost nodes fixed; z_min wall fixed in both directions; other walls rollers.
+    // Fixities: ghost nodes fixed; a rough z_min wall fixed in both
+    // directions; the other walls (and a frictional floor) hold the normal
+    // velocity, with Coulomb friction on the solid where μ > 0.
     let [row, rows] = grid.node_dims();
     let mut base = vec![[1.0, 1.0]; row * rows];
+    let mut contact = vec![[0.0, 0.0]; row * rows];
+    let rough_floor = spec.floor == MpmFloor::Rough;
     for r in 0..rows {
         for c in 0..row {
             let node = &mut base[r * row + c];
@@ -162,14 +167,21 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
                 *node = [0.0, 0.0];
                 continue;
             }
+            let into = &mut contact[r * row + c];
             for face in &d.walls {
                 match face {
-                    Face::XMin if i == 0 => node[0] = 0.0,
-                    Face::XMax if i == nx => node[0] = 0.0,
-                    Face::ZMin if k == 0 => *node = [0.0, 0.0],
-                    Face::ZMax if k == nz => node[1] = 0.0,
+                    Face::XMin if i == 0 => (node[0], *into) = (0.0, [-1.0, 0.0]),
+                    Face::XMax if i == nx => (node[0], *into) = (0.0, [1.0, 0.0]),
+                    Face::ZMin if k == 0 && rough_floor => *node = [0.0, 0.0],
+                    Face::ZMin if k == 0 => (node[1], *into) = (0.0, [0.0, -1.0]),
+                    Face::ZMax if k == nz => (node[1], *into) = (0.0, [0.0, 1.0]),
                     _ => {}
                 }
+            }
+            if node[0] == 0.0 && node[1] == 0.0 || spec.wall_friction == 0.0 {
+                // A corner holds both directions: nothing left to slide;
+                // without friction a wall is a plain roller.
+                *into = [0.0, 0.0];
             }
         }
     }
@@ -198,6 +210,6 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
             if spec.quadratic_drag { "on" } else { "off" }
         ));
     }
-    let mpm = Mpm::new(params, grid, state, Fixities { base, gates: gate_nodes });
+    let mpm = Mpm::new(params, grid, state, Fixities { base, gates: gate_nodes, contact });
     Ok(MpmSetup { mpm, gates, porosity_initial: n0, soil_top, notes })
 }

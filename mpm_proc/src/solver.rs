@@ -37,6 +37,9 @@ pub struct Params {
     pub max_porosity: f64,
     /// Local damping α.
     pub damping: f64,
+    /// Coulomb friction μ of the solid on the walls listed in
+    /// `Fixities::contact` (0: they hold only the normal velocity).
+    pub wall_friction: f64,
     /// Filling ratio below which a liquid point is on the free surface.
     pub free_surface_fill: f64,
     /// PIC share α of the point velocity update: v ← (1 − α) v_FLIP + α v_PIC.
@@ -74,6 +77,15 @@ impl PointSet {
     /// ½ Σ m v², J/m.
     pub fn kinetic_energy(&self) -> f64 {
         self.v.iter().zip(&self.mass).map(|(v, m)| 0.5 * m * (v[0] * v[0] + v[1] * v[1])).sum()
+    }
+    /// −Σ m g·(x − origin), J per metre of width.
+    pub fn potential_energy(&self, gravity: [f64; 2], origin: [f64; 2]) -> f64 {
+        -self
+            .x
+            .iter()
+            .zip(&self.mass)
+            .map(|(x, m)| m * (gravity[0] * (x[0] - origin[0]) + gravity[1] * (x[1] - origin[1])))
+            .sum::<f64>()
     }
     pub fn max_speed(&self) -> f64 {
         self.v.iter().map(|v| (v[0] * v[0] + v[1] * v[1]).sqrt()).fold(0.0, f64::max)
@@ -161,6 +173,8 @@ struct NodeUpdate {
     a: [[f64; 2]; 2],
     /// XPIC(2): S w1, the mass-weighted map of the points' S⁺v_g, m/s.
     filtered: [[f64; 2]; 2],
+    /// On a wall node: the grains' normal load on the wall, N.
+    wall_load: f64,
 }
 
 /// Per-element fields.
@@ -186,6 +200,10 @@ pub struct Fixities {
     pub base: Vec<[f64; 2]>,
     /// Stored node indices each gate fixes in x while it holds.
     pub gates: Vec<Vec<usize>>,
+    /// Per node, the unit vector into the wall whose Coulomb friction
+    /// (`Params::wall_friction`) acts on the solid there; zero where none.
+    /// Its component along the wall normal is fixed in `base`.
+    pub contact: Vec<[f64; 2]>,
 }
 
 /// Wall seconds per stage, summed over the run.
@@ -226,9 +244,23 @@ pub struct Mpm {
     /// Node rows and columns touched by any stencil this step (inclusive).
     rows: (usize, usize),
     columns: (usize, usize),
+    /// Nodes with wall friction (`Fixities::contact` non-zero).
+    contact_nodes: Vec<usize>,
     mass_tolerance: f64,
     pub stage_seconds: StageSeconds,
     pub timing: bool,
+    /// The frictional walls' forces on the solid in the last step.
+    pub wall_forces: WallForces,
+}
+
+/// Sums over the frictional wall nodes (`Fixities::contact`) of one step,
+/// N per metre of width.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct WallForces {
+    /// The grains' normal load on the walls.
+    pub normal_load: f64,
+    /// The friction force the walls applied, in magnitude.
+    pub friction: f64,
 }
 
 impl std::fmt::Debug for Mpm {
@@ -268,6 +300,8 @@ impl Mpm {
         }
         let min_mass = state.solid.set.mass.iter().chain(&state.liquid.set.mass).cloned().fold(f64::INFINITY, f64::min);
         let ne = grid.element_count();
+        let contact_nodes =
+            fixities.contact.iter().enumerate().filter(|(_, c)| **c != [0.0; 2]).map(|(i, _)| i).collect();
         let mut mpm = Mpm {
             params,
             grid,
@@ -299,9 +333,11 @@ impl Mpm {
             xpic_points: [Vec::new(), Vec::new()],
             rows: (0, 0),
             columns: (0, 0),
+            contact_nodes,
             mass_tolerance: if min_mass.is_finite() { 1e-6 * min_mass } else { 0.0 },
             stage_seconds: StageSeconds::default(),
             timing: false,
+            wall_forces: WallForces::default(),
             state,
         };
         mpm.apply_gate_fixities();
@@ -341,6 +377,7 @@ impl Mpm {
         let t2 = self.timing.then(std::time::Instant::now);
         self.prepare_forces();
         self.solve_nodes();
+        self.apply_wall_friction();
         let t3 = self.timing.then(std::time::Instant::now);
         self.update_velocities();
         self.remap_momentum();
@@ -663,6 +700,7 @@ impl Mpm {
         let (solid, liquid) = (&self.state.solid, &self.state.liquid);
         let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
         let (sums, mask, vs_all, vl_all) = (&self.sums, &self.mask, &self.velocity_s, &self.velocity_l);
+        let (contact, solid_fraction, mu) = (&self.fixities.contact, &self.solid_fraction, p.wall_friction);
         let tol = self.mass_tolerance;
         let xpic = self.xpic_active();
         let [w_s, w_l] = &self.xpic_points;
@@ -701,9 +739,22 @@ impl Mpm {
             let s = &sums[node];
             let (vs, vl) = (vs_all[node], vl_all[node]);
             let mut a = [[0.0; 2]; 2];
+            let into = contact[node];
+            let normal_axis = if into[0] != 0.0 {
+                Some(0)
+            } else if into[1] != 0.0 {
+                Some(1)
+            } else {
+                None
+            };
+            // Momentum per unit time the wall takes from each phase along its normal.
+            let mut reaction = [0.0; 2];
             for d in 0..2 {
                 let m = mask[node][d];
                 if m == 0.0 {
+                    if normal_axis == Some(d) && mu > 0.0 {
+                        reaction = Self::wall_reaction(s, d, [fs[d], fl[d]], q, into[d], dt, tol);
+                    }
                     // A fixed component ends the step at rest: its "acceleration"
                     // takes the mapped velocity to zero, so that the FLIP update
                     // carries the constraint to the points. With a = 0 the points
@@ -736,12 +787,93 @@ impl Mpm {
                     }
                 }
             }
+            // The grains' share of the wall's normal reaction: the solid's
+            // less the pore pressure's share (1 − n)/n of the liquid's.
+            let mut wall_load = 0.0;
+            if normal_axis.is_some() && s.mass_s > tol {
+                let solid_share = solid_fraction[node];
+                let pore = if s.mass_l > tol && solid_share < 1.0 {
+                    solid_share / (1.0 - solid_share) * reaction[1]
+                } else {
+                    0.0
+                };
+                wall_load = (reaction[0] - pore).max(0.0);
+            }
             for (phase, mass) in [(0, s.mass_s), (1, s.mass_l)] {
                 back[phase] = if mass > tol { [back[phase][0] / mass, back[phase][1] / mass] } else { [0.0; 2] };
             }
-            *out = NodeUpdate { a, filtered: back };
+            *out = NodeUpdate { a, filtered: back, wall_load };
         });
         self.accel = accel;
+    }
+
+    /// Coulomb friction of the walls on the solid (`Fixities::contact`,
+    /// μ = `Params::wall_friction`): at each wall node whose tangential
+    /// component is free, the end-of-step tangential velocity of the solid
+    /// is reduced by at most μ Δt N / m, N the grains' normal load there
+    /// (`NodeUpdate::wall_load`), and stopped if that is enough (stick):
+    /// the grid form of Bardenhagen et al. (2001)'s contact against a
+    /// rigid wall. The points next to the wall take the grid's velocity
+    /// along the held normal (`update_velocities`), so the load is not
+    /// counted again from momentum the wall already stopped.
+    fn apply_wall_friction(&mut self) {
+        let mu = self.params.wall_friction;
+        if mu == 0.0 {
+            self.wall_forces = WallForces::default();
+            return;
+        }
+        let dt = self.params.dt;
+        let tol = self.mass_tolerance;
+        let mut totals = WallForces::default();
+        for &node in &self.contact_nodes {
+            let into = self.fixities.contact[node];
+            let t = if into[0] != 0.0 { 1 } else { 0 };
+            let s = &self.sums[node];
+            if self.mask[node][t] == 0.0 || s.mass_s <= tol {
+                continue;
+            }
+            let load = self.accel[node].wall_load;
+            let vs = self.velocity_s[node][t];
+            let a = &mut self.accel[node].a[0][t];
+            let trial = vs + dt * *a;
+            let slip = trial.abs() - mu * dt * load / s.mass_s;
+            let end = if slip > 0.0 { slip.copysign(trial) } else { 0.0 };
+            *a = (end - vs) / dt;
+            totals.normal_load += load;
+            totals.friction += s.mass_s * (trial - end).abs() / dt;
+        }
+        self.wall_forces = totals;
+    }
+
+    /// The normal reaction of a wall on [solid, liquid] at a node, N: the
+    /// force along the wall normal `into` (±1, the direction into the
+    /// wall) that holds each phase there, its free acceleration (undamped
+    /// forces `f`, the phases coupled by the same implicit drag `q` as at
+    /// a free node) times its mass; zero for a phase pulled away. The
+    /// mapped velocity into the wall is not counted as an impulse: at a
+    /// held node it is the interpolation of the layer moving above, not an
+    /// impact (counting it loaded the floor under the dry lab column with
+    /// 2.1–2.7 times its weight while it spread, against 1.0–1.26 from the
+    /// forces).
+    fn wall_reaction(s: &NodeSums, d: usize, f: [f64; 2], q: f64, into: f64, dt: f64, tol: f64) -> [f64; 2] {
+        let (has_s, has_l) = (s.mass_s > tol, s.mass_l > tol);
+        let v0 = [
+            if has_s { s.momentum_s[d] / s.mass_s } else { 0.0 },
+            if has_l { s.momentum_l[d] / s.mass_l } else { 0.0 },
+        ];
+        let a = if has_s && has_l && q > 0.0 {
+            let w1 = (v0[1] - v0[0] + dt * (f[1] / s.mass_l - f[0] / s.mass_s))
+                / (1.0 + dt * q * (1.0 / s.mass_l + 1.0 / s.mass_s));
+            [(f[0] + q * w1) / s.mass_s, (f[1] - q * w1) / s.mass_l]
+        } else {
+            [if has_s { f[0] / s.mass_s } else { 0.0 }, if has_l { f[1] / s.mass_l } else { 0.0 }]
+        };
+        let mass = [s.mass_s, s.mass_l];
+        let mut r = [0.0; 2];
+        for phase in 0..2 {
+            r[phase] = (a[phase] * into).max(0.0) * mass[phase];
+        }
+        r
     }
 
     /// Whether the point update filters with XPIC(2).
@@ -755,7 +887,12 @@ impl Mpm {
     /// v_I^new the end-of-step nodal velocity (zero on fixed components);
     /// with `xpic_order` 2, v_p ← v_p + Δt Σ N_I a_I − α Q² v_p instead,
     /// Q = I − S⁺S the part of the point velocities the grid cannot carry
-    /// (PIC is v_FLIP − Q v_p).
+    /// (PIC is v_FLIP − Q v_p). A point whose stencil touches a node held
+    /// in a direction takes the grid's velocity in it (PIC), and in both
+    /// directions next to a frictional wall: under FLIP it kept the part
+    /// of its velocity the wall had stopped, mapped it back each step, and
+    /// the wall stopped it again (a sliding block decelerated at 5 μg from
+    /// these phantom normal impulses; docs/mpm.md, "Frictional walls").
     fn update_velocities(&mut self) {
         if self.xpic_active() {
             self.update_velocities_xpic2();
@@ -764,22 +901,26 @@ impl Mpm {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
         let alpha = self.params.pic_fraction;
-        let (accel, mask) = (&self.accel, &self.mask);
+        let (accel, mask, contact) = (&self.accel, &self.mask, &self.fixities.contact);
         let (vs, vl) = (&self.velocity_s, &self.velocity_l);
         let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
             let velocity = if phase == 0 { vs } else { vl };
             set.v.par_iter_mut().zip(scratch.stencil.par_iter()).with_min_len(CHUNK).for_each(|(v, st)| {
                 let mut a = [0.0; 2];
                 let mut pic = [0.0; 2];
+                let mut held = [false; 2];
                 st.for_each(row, |node, n, _| {
                     let (acc, k, v0) = (accel[node].a[phase], mask[node], velocity[node]);
                     a[0] += n * acc[0];
                     a[1] += n * acc[1];
                     pic[0] += n * k[0] * (v0[0] + dt * acc[0]);
                     pic[1] += n * k[1] * (v0[1] + dt * acc[1]);
+                    let touches_wall = n > 0.0 && contact[node] != [0.0; 2];
+                    held[0] |= n > 0.0 && k[0] == 0.0 || touches_wall;
+                    held[1] |= n > 0.0 && k[1] == 0.0 || touches_wall;
                 });
                 for d in 0..2 {
-                    v[d] = (1.0 - alpha) * (v[d] + dt * a[d]) + alpha * pic[d];
+                    v[d] = if held[d] { pic[d] } else { (1.0 - alpha) * (v[d] + dt * a[d]) + alpha * pic[d] };
                 }
             });
         };
@@ -796,24 +937,34 @@ impl Mpm {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
         let alpha = self.params.pic_fraction;
-        let accel = &self.accel;
+        let (accel, mask, contact) = (&self.accel, &self.mask, &self.fixities.contact);
+        let (vs, vl) = (&self.velocity_s, &self.velocity_l);
         let w = &self.xpic_points;
         let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
+            let velocity = if phase == 0 { vs } else { vl };
             set.v.par_iter_mut().zip(scratch.stencil.par_iter()).enumerate().with_min_len(CHUNK).for_each(
                 |(p, (v, st))| {
                     let mut a = [0.0; 2];
                     let mut w2 = [0.0; 2];
+                    let mut pic = [0.0; 2];
+                    let mut held = [false; 2];
                     st.for_each(row, |node, n, _| {
                         let u = &accel[node];
                         a[0] += n * u.a[phase][0];
                         a[1] += n * u.a[phase][1];
                         w2[0] += n * u.filtered[phase][0];
                         w2[1] += n * u.filtered[phase][1];
+                        let (k, v0) = (mask[node], velocity[node]);
+                        pic[0] += n * k[0] * (v0[0] + dt * u.a[phase][0]);
+                        pic[1] += n * k[1] * (v0[1] + dt * u.a[phase][1]);
+                        let touches_wall = n > 0.0 && contact[node] != [0.0; 2];
+                        held[0] |= n > 0.0 && k[0] == 0.0 || touches_wall;
+                        held[1] |= n > 0.0 && k[1] == 0.0 || touches_wall;
                     });
                     let w1 = w[phase][p];
                     for d in 0..2 {
                         let null_part = v[d] - 2.0 * w1[d] + w2[d];
-                        v[d] += dt * a[d] - alpha * null_part;
+                        v[d] = if held[d] { pic[d] } else { v[d] + dt * a[d] - alpha * null_part };
                     }
                 },
             );

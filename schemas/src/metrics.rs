@@ -153,4 +153,14 @@ pub struct MpmMetrics {
     /// energy the grid carries; the rest is invisible to it.
     pub kinetic_energy_solid_grid: f64,
     pub kinetic_energy_liquid_grid: f64,
+    /// Gravitational potential energy of the solid and of the liquid
+    /// points, −Σ m g·x, J/m (x from the domain's origin): the energy
+    /// released by the collapse is its fall from the first frame.
+    pub potential_energy_solid: f64,
+    pub potential_energy_liquid: f64,
+    /// Over the frictional walls' nodes in the last step (`mpm.floor =
+    /// "frictional"`, `mpm.wall_friction` > 0): the grains' normal load and
+    /// the friction force applied, N/m; 0 without wall friction.
+    pub wall_normal_load: f64,
+    pub wall_friction_force: f64,
 }

@@ -327,6 +327,17 @@ pub struct MpmSpec {
     /// Local (Cundall) damping coefficient α of the out-of-balance forces. Default 0.02.
     #[serde(default = "default_mpm_damping")]
     pub damping: f64,
+    /// How the floor (the `z_min` wall) holds the soil: `rough` (default,
+    /// the paper's §4.2: both phases fixed in both directions) or
+    /// `frictional` (the normal velocity held, the solid sliding with
+    /// Coulomb friction `wall_friction`, the liquid slipping freely).
+    #[serde(default)]
+    pub floor: MpmFloor,
+    /// Coulomb friction coefficient μ of the soil on the walls: the floor
+    /// when `floor = "frictional"`, and the side walls (x_min, x_max,
+    /// z_max). Default 0: smooth side walls, as rollers.
+    #[serde(default)]
+    pub wall_friction: f64,
     /// Ergun coefficients A and B of Eqs. 8–9. Defaults 150 and 1.75.
     #[serde(default = "default_ergun_a")]
     pub ergun_a: f64,
@@ -487,6 +498,18 @@ impl ShapeFunctions {
             ShapeFunctions::Linear => "linear",
         }
     }
+}
+
+/// How the MPM floor holds the soil.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MpmFloor {
+    /// Both phases fixed in both directions (no slip).
+    #[default]
+    Rough,
+    /// Normal velocity fixed; the solid slides with Coulomb friction
+    /// `wall_friction`, the liquid slips freely.
+    Frictional,
 }
 
 /// How the MPM soil's stresses start.
@@ -1300,6 +1323,7 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
     v.at_least("mpm.cavitation_threshold", m.cavitation_threshold, 0.0);
     v.open_range("mpm.max_porosity", m.max_porosity, 0.0, 1.0);
     v.closed_open("mpm.damping", m.damping, 0.0, 1.0);
+    v.at_least("mpm.wall_friction", m.wall_friction, 0.0);
     v.positive("mpm.ergun_a", m.ergun_a);
     v.positive("mpm.ergun_b", m.ergun_b);
     v.half_open("mpm.free_surface_fill", m.free_surface_fill, 0.0, 1.0);

@@ -7,12 +7,18 @@ use std::sync::OnceLock;
 use foxglove::Decode;
 use integration_tests::coupler_run;
 
-/// The dry H0 = 0.06 m column as shipped (4 mm elements, 1800 points), to
-/// rest or 8 t_ref.
+/// The scene's floor replaced by the paper's rough one (§4.2), which the
+/// bounds below reason about; the shipped scenes' frictional floor is
+/// tested in `mpm_proc/tests/wall_friction.rs`.
+const ROUGH_FLOOR: [&str; 4] = ["--set", "mpm.floor=\"rough\"", "--set", "mpm.wall_friction=0"];
+
+/// The dry H0 = 0.06 m column as shipped (4 mm elements, 1800 points) on
+/// the rough floor, to rest or 8 t_ref.
 fn dry_run() -> &'static PathBuf {
     static RUN: OnceLock<PathBuf> = OnceLock::new();
     RUN.get_or_init(|| {
-        coupler_run("mpm_dry_h060", "scenes/ceccato2020/mpm_dry_h060.toml", &["--set", "output.end_time=0.63"])
+        let args = [&["--set", "output.end_time=0.63"][..], &ROUGH_FLOOR].concat();
+        coupler_run("mpm_dry_h060", "scenes/ceccato2020/mpm_dry_h060.toml", &args)
     })
 }
 
@@ -60,9 +66,9 @@ fn dry_mpm_column_collapses_and_stops() {
     // Lower bound: a deposit of the column's area L0 H0 against the back
     // wall with its slope at φ = 35° reaches L_f = √(2 L0 H0 / tan φ) =
     // 0.083 m, runout 1.07; less would leave a slope steeper than φ. Upper
-    // bound: the DEM of the same column on a floor with friction 0.577, not
-    // rough, stops at 2.23–2.26 (docs/BENCHMARKS.md); a rough floor cannot
-    // let it run further than that by a quarter.
+    // bound: the same MPM column on the DEM's floor (Coulomb, μ = 0.577)
+    // runs out 3.97 (docs/mpm.md); a rough floor holds it back, and by more
+    // than a quarter.
     assert!(runout > 1.07 && runout < 2.8, "runout {runout}");
     // The deposit's mean slope (pile top to front) stays below φ = 35°.
     let deposit = s["deposit"].as_array().unwrap();
@@ -110,10 +116,10 @@ fn summary_front_len() -> usize {
 }
 
 /// The saturated H0 = 0.06 m column as shipped (4 mm elements, 1800 + 1800
-/// points), to rest or 8.5 t_ref.
+/// points) on the rough floor, to rest or 8.5 t_ref.
 fn saturated_run() -> &'static PathBuf {
     static RUN: OnceLock<PathBuf> = OnceLock::new();
-    RUN.get_or_init(|| coupler_run("mpm_sat_h060", "scenes/ceccato2020/mpm_sat_h060.toml", &[]))
+    RUN.get_or_init(|| coupler_run("mpm_sat_h060", "scenes/ceccato2020/mpm_sat_h060.toml", &ROUGH_FLOOR))
 }
 
 #[test]
@@ -149,7 +155,7 @@ fn saturated_mpm_column_runs_out_further_than_the_dry_one() {
     assert!((runout - at(3.0)).abs() < 0.05 * runout, "front at 3 t_ref {} vs {runout} at rest", at(3.0));
     // Ceccato et al. 2020 §2: for a > 1 the saturated column runs out
     // further than the dry one. The dry MPM column of the same grid and soil
-    // stops at about 1.5 (dry_mpm_column_collapses_and_stops); the saturated one
+    // stops at about 1.6 (dry_mpm_column_collapses_and_stops); the saturated one
     // must go further, and a Mohr–Coulomb soil with φ = 35° cannot run out
     // more than twice as far as dry.
     let dry: serde_json::Value =

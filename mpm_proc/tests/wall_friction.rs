@@ -1,0 +1,212 @@
+//! A frictional floor (`mpm.floor = "frictional"`): a block sliding on it
+//! decelerates at μ g and stops after v0²/(2 μ g); on a slope it holds
+//! below tan θ = μ and slides at g (sin θ − μ cos θ) above.
+
+mod common;
+
+use std::sync::atomic::AtomicBool;
+
+use mpm_proc::run::{gravity_phase, Progress};
+use mpm_proc::setup::build;
+use mpm_proc::solver::Mpm;
+use schemas::Scene;
+
+const G: f64 = 9.81;
+
+/// Wall friction of the tests. An elastic block sliding on a Coulomb floor
+/// is dynamically unstable above a critical μ (friction-induced flutter,
+/// Martins, Oden & Simões 1990): this 20 × 8 mm block slid steadily at
+/// μ = 0.1 and 0.15, while at 0.3 its vertical ringing grew tenfold every
+/// 200 steps and the normal load swung between 0.2 and 4 times its weight
+/// (docs/mpm.md, "Frictional walls"). Soil yields and damps that ringing.
+const MU: f64 = 0.1;
+
+/// A dry elastic block 20 × 8 mm (cohesion keeps it from yielding) on a
+/// frictional floor of μ in a 12 × 4 cm box, gravity tilted by `slope`
+/// radians toward +x, no damping, `mpm` lines added.
+fn block(mu: f64, slope: f64, overrides: &[&str]) -> Mpm {
+    let (gx, gz) = (G * slope.sin(), -G * slope.cos());
+    let text = format!(
+        r#"
+[scene]
+name = "sliding_block"
+method = "mpm"
+[domain]
+min = [0.0, 0.0, 0.0]
+max = [0.12, 0.05, 0.04]
+gravity = [{gx}, 0.0, {gz}]
+walls = ["x_min", "x_max", "z_min"]
+[[particles]]
+name = "soil"
+density = 2600.0
+diameter = 2.5e-3
+[particles.packing]
+method = "deposit"
+region = {{ min = [0.02, 0.0, 0.0], max = [0.04, 0.05, 0.008] }}
+porosity = 0.4
+seed = 1
+[mpm]
+element_size = 0.002
+points_per_element = 4
+cohesion = 1.0e5
+damping = 0.0
+floor = "frictional"
+wall_friction = {mu}
+initial_stress = "zero"
+[output]
+end_time = 0.2
+record_interval = 0.01
+[analysis]
+column_length = 0.02
+column_height = 0.008
+condition = "dry"
+"#
+    );
+    let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    let scene = Scene::from_toml_str(&text, std::path::Path::new("."), &overrides).unwrap_or_else(|e| panic!("{e}"));
+    build(&scene).unwrap().mpm
+}
+
+/// Mass-weighted mean x position and x velocity of the solid.
+fn centre(mpm: &Mpm) -> (f64, f64) {
+    let s = &mpm.state.solid.set;
+    let m: f64 = s.mass.iter().sum();
+    let x = s.x.iter().zip(&s.mass).map(|(x, m)| x[0] * m).sum::<f64>() / m;
+    let v = s.v.iter().zip(&s.mass).map(|(v, m)| v[0] * m).sum::<f64>() / m;
+    (x, v)
+}
+
+/// Lets the block settle on the floor under gravity (its weight builds the
+/// normal stress friction needs) with heavy damping, then zeroes velocities.
+fn settle(mpm: &mut Mpm) {
+    let damping = mpm.params.damping;
+    mpm.params.damping = 0.7;
+    for _ in 0..(0.03 / mpm.params.dt) as usize {
+        mpm.step();
+    }
+    mpm.params.damping = damping;
+    mpm.state.solid.set.v.iter_mut().for_each(|v| *v = [0.0; 2]);
+}
+
+/// Slides the settled block from `v0` until it stops or `t_end`: the
+/// deceleration (slope of the mean velocity while it is between 0.8 and
+/// 0.2 v0), the distance to rest and the time of rest.
+fn slide(mpm: &mut Mpm, v0: f64, t_end: f64) -> (f64, f64, f64) {
+    mpm.state.solid.set.v.iter_mut().for_each(|v| *v = [v0, 0.0]);
+    let (x0, _) = centre(mpm);
+    let dt = mpm.params.dt;
+    let (mut t, mut samples) = (0.0, Vec::new());
+    let mut stop = f64::NAN;
+    while t < t_end {
+        mpm.step();
+        t += dt;
+        let (_, v) = centre(mpm);
+        if v < 0.8 * v0 && v > 0.2 * v0 {
+            samples.push((t, v));
+        }
+        if stop.is_nan() && v < 1e-3 * v0 {
+            stop = t;
+        }
+    }
+    // Least-squares slope of v(t) over the samples.
+    let n = samples.len() as f64;
+    let (st, sv) = samples.iter().fold((0.0, 0.0), |(a, b), (t, v)| (a + t, b + v));
+    let (mt, mv) = (st / n, sv / n);
+    let (num, den) = samples.iter().fold((0.0, 0.0), |(a, b), (t, v)| (a + (t - mt) * (v - mv), b + (t - mt).powi(2)));
+    (-num / den, centre(mpm).0 - x0, stop)
+}
+
+fn sliding_block_stops_at_mu_g(overrides: &[&str]) {
+    let (mu, v0) = (MU, 0.1);
+    let mut mpm = block(mu, 0.0, overrides);
+    settle(&mut mpm);
+    let (decel, distance, stop) = slide(&mut mpm, v0, 0.2);
+    let (decel_exact, distance_exact, stop_exact) = (mu * G, v0 * v0 / (2.0 * mu * G), v0 / (mu * G));
+    eprintln!(
+        "{overrides:?} deceleration {decel:.4} (μg {decel_exact:.4}), distance {distance:.5} ({distance_exact:.5}), stop {stop:.4} s ({stop_exact:.4})"
+    );
+    // 2 %, the issue's bar: the block is elastic and rings as it slides,
+    // so the mean velocity carries a small wave on the linear decay.
+    assert!((decel / decel_exact - 1.0).abs() < 0.02, "deceleration {decel} against μg = {decel_exact}");
+    assert!((distance / distance_exact - 1.0).abs() < 0.02, "distance {distance} against {distance_exact}");
+    assert!((stop / stop_exact - 1.0).abs() < 0.02, "stopped at {stop} s against {stop_exact}");
+}
+
+#[test]
+fn sliding_block_stops_at_mu_g_flip_filtered() {
+    sliding_block_stops_at_mu_g(&[]);
+}
+
+#[test]
+fn sliding_block_stops_at_mu_g_flip_unfiltered() {
+    sliding_block_stops_at_mu_g(&["mpm.pic_fraction=0"]);
+}
+
+#[test]
+fn sliding_block_stops_at_mu_g_linear_shapes() {
+    sliding_block_stops_at_mu_g(&["mpm.shape_functions=\"linear\""]);
+}
+
+/// On a slope below the friction angle the settled block stays; above it
+/// it slides at g (sin θ − μ cos θ).
+#[test]
+fn block_on_a_slope_holds_below_the_friction_angle_and_slides_above() {
+    let mu = MU;
+    for (tan, expected) in [(0.05, 0.0), (0.2, 1.0)] {
+        let slope: f64 = f64::atan(tan);
+        let mut mpm = block(mu, slope, &[]);
+        settle(&mut mpm);
+        let (x0, _) = centre(&mpm);
+        let t_end = 0.1;
+        for _ in 0..(t_end / mpm.params.dt) as usize {
+            mpm.step();
+        }
+        let (x, v) = centre(&mpm);
+        let a = G * (slope.sin() - mu * slope.cos());
+        eprintln!("tan θ = {tan}: moved {:.3e} m, v {v:.4} m/s (g(sin θ − μ cos θ) t = {:.4})", x - x0, a * t_end);
+        if expected == 0.0 {
+            assert!((x - x0).abs() < 1e-5, "the block crept {} m below the friction angle", x - x0);
+        } else {
+            assert!((v / (a * t_end) - 1.0).abs() < 0.02, "velocity {v} against {}", a * t_end);
+        }
+    }
+}
+
+struct Quiet;
+impl Progress for Quiet {
+    fn gravity_phase(&mut self, _: f64, _: f64) {}
+    fn collapse(&mut self, _: f64, _: f64, _: u64) {}
+    fn log(&mut self, _: &str) {}
+}
+
+/// The load friction acts on is the grains' (effective) one: a column at
+/// rest between frictional walls loads the floor with its effective unit
+/// weight γ' = (1 − n)(ρ_s − ρ_L) g saturated, (1 − n) ρ_s g dry, over
+/// H L, and each side wall with K0 γ' (H − z). The two corner nodes are
+/// held both ways and take no friction, so their shares are not counted:
+/// γ' H h/2 each on the floor and K0 γ' (H h/2 − h²/6) each on the walls
+/// (the hat function against the linear stress), h the element size.
+#[test]
+fn walls_carry_the_effective_weight_of_a_column_at_rest() {
+    let (width, height, n, k0) = (0.04, 0.06, 0.4, 0.3 / 0.7);
+    for (water, gamma) in [(None, (1.0 - n) * 2600.0 * G), (Some(height), (1.0 - n) * (2600.0 - 1000.0) * G)] {
+        let scene =
+            common::column(width, height, 0.08, water, 2.5e-3, "floor = \"frictional\"\nwall_friction = 0.5", &[]);
+        let mut setup = build(&scene).unwrap();
+        let mpm = &mut setup.mpm;
+        gravity_phase(&scene, mpm, &AtomicBool::new(false), &mut Quiet);
+        let mut load = 0.0;
+        let steps = (0.02 / mpm.params.dt) as usize;
+        for _ in 0..steps {
+            mpm.step();
+            load += mpm.wall_forces.normal_load / steps as f64;
+        }
+        let h = mpm.grid.h;
+        let expected = gamma * height * (width - h) + k0 * gamma * (height * height - height * h + h * h / 3.0);
+        eprintln!("water {water:?}: wall load {load:.3} N/m against {expected:.3}");
+        // 0.5 %: the hydrostatic test holds the stresses to 0.01 % and the
+        // walls' load is their nodal resultant; a wrong pore-pressure share
+        // would be off by the buoyancy, 38 %.
+        assert!((load / expected - 1.0).abs() < 0.005, "wall load {load} against {expected}");
+    }
+}
