@@ -770,22 +770,8 @@ impl Mpm {
                     continue;
                 }
                 let damp = |f: f64, v: f64| if v != 0.0 { f - alpha * f.abs() * v.signum() } else { f };
-                let (f_s, f_l) = (damp(fs[d], vs[d]), damp(fl[d], vl[d]));
-                let (has_s, has_l) = (s.mass_s > tol, s.mass_l > tol);
-                if has_s && has_l && q > 0.0 {
-                    let w0 = vl[d] - vs[d];
-                    let w1 = (w0 + dt * (f_l / s.mass_l - f_s / s.mass_s))
-                        / (1.0 + dt * q * (1.0 / s.mass_l + 1.0 / s.mass_s));
-                    a[0][d] = (f_s + q * w1) / s.mass_s;
-                    a[1][d] = (f_l - q * w1) / s.mass_l;
-                } else {
-                    if has_s {
-                        a[0][d] = f_s / s.mass_s;
-                    }
-                    if has_l {
-                        a[1][d] = f_l / s.mass_l;
-                    }
-                }
+                let force = [damp(fs[d], vs[d]), damp(fl[d], vl[d])];
+                [a[0][d], a[1][d]] = Self::coupled_accelerations(s, force, [vs[d], vl[d]], q, dt, tol);
             }
             // The grains' share of the wall's normal reaction: the solid's
             // less the pore pressure's share (1 − n)/n of the liquid's.
@@ -856,24 +842,28 @@ impl Mpm {
     /// 2.1–2.7 times its weight while it spread, against 1.0–1.26 from the
     /// forces).
     fn wall_reaction(s: &NodeSums, d: usize, f: [f64; 2], q: f64, into: f64, dt: f64, tol: f64) -> [f64; 2] {
-        let (has_s, has_l) = (s.mass_s > tol, s.mass_l > tol);
-        let v0 = [
-            if has_s { s.momentum_s[d] / s.mass_s } else { 0.0 },
-            if has_l { s.momentum_l[d] / s.mass_l } else { 0.0 },
+        let mapped = [
+            if s.mass_s > tol { s.momentum_s[d] / s.mass_s } else { 0.0 },
+            if s.mass_l > tol { s.momentum_l[d] / s.mass_l } else { 0.0 },
         ];
-        let a = if has_s && has_l && q > 0.0 {
-            let w1 = (v0[1] - v0[0] + dt * (f[1] / s.mass_l - f[0] / s.mass_s))
+        let a = Self::coupled_accelerations(s, f, mapped, q, dt, tol);
+        [(a[0] * into).max(0.0) * s.mass_s, (a[1] * into).max(0.0) * s.mass_l]
+    }
+
+    /// Accelerations of [solid, liquid] along one component at a node from
+    /// the forces `f` and start velocities `v`, the drag `q` implicit in the
+    /// relative velocity (backward Euler, docs/mpm.md step 5); a phase
+    /// without mass gets 0.
+    #[inline(always)]
+    fn coupled_accelerations(s: &NodeSums, f: [f64; 2], v: [f64; 2], q: f64, dt: f64, tol: f64) -> [f64; 2] {
+        let (has_s, has_l) = (s.mass_s > tol, s.mass_l > tol);
+        if has_s && has_l && q > 0.0 {
+            let w1 = (v[1] - v[0] + dt * (f[1] / s.mass_l - f[0] / s.mass_s))
                 / (1.0 + dt * q * (1.0 / s.mass_l + 1.0 / s.mass_s));
             [(f[0] + q * w1) / s.mass_s, (f[1] - q * w1) / s.mass_l]
         } else {
             [if has_s { f[0] / s.mass_s } else { 0.0 }, if has_l { f[1] / s.mass_l } else { 0.0 }]
-        };
-        let mass = [s.mass_s, s.mass_l];
-        let mut r = [0.0; 2];
-        for phase in 0..2 {
-            r[phase] = (a[phase] * into).max(0.0) * mass[phase];
         }
-        r
     }
 
     /// Whether the point update filters with XPIC(2).
