@@ -1,7 +1,7 @@
 //! `coupler check`: what a run of the scene will be, without running it.
 
 use schemas::mpm;
-use schemas::scene::{Face, InitialStress, PackingSpec, Scene};
+use schemas::scene::{Face, InitialStress, MpmFloor, MpmTransfer, PackingSpec, Scene};
 use schemas::Method;
 
 use dem_proc::packing::{cache_path, generate};
@@ -378,20 +378,36 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
         InitialStress::Zero => println!("gravity      stress-free start, gravity applied at t = 0 (no gravity phase)"),
     }
     let walls = &s.domain.walls;
-    let fixed = if walls.contains(&Face::ZMin) { "z_min fixed (no-slip, impermeable)" } else { "no fixed base" };
+    let fixed = match (walls.contains(&Face::ZMin), m.floor) {
+        (false, _) => "no floor".to_string(),
+        (true, MpmFloor::Rough) => "z_min rough (no slip, impermeable)".to_string(),
+        (true, MpmFloor::Frictional) => {
+            format!("z_min Coulomb, soil friction {} (liquid slips; impermeable)", m.wall_friction)
+        }
+    };
     let rollers: Vec<&str> =
         [Face::XMin, Face::XMax, Face::ZMax].into_iter().filter(|f| walls.contains(f)).map(Face::name).collect();
+    let side = if m.wall_friction > 0.0 { format!("soil friction {}", m.wall_friction) } else { "rollers".to_string() };
     println!(
-        "boundaries   {fixed}; rollers {}; y faces unused; local damping {}; top load {} Pa",
+        "boundaries   {fixed}; {side} on {}; y faces unused; local damping {}; top load {} Pa",
         if rollers.is_empty() { "none".to_string() } else { rollers.join(" ") },
         m.damping,
         m.top_load
     );
-    println!(
-        "transfer     FLIP less {} of the grid-invisible velocity per step ({}), MUSL (pure FLIP, 0, never lets a deposit rest; docs/mpm.md)",
-        m.pic_fraction,
-        if m.xpic_order >= 2 { "XPIC(2)" } else { "PIC blend" }
-    );
+    match m.transfer {
+        MpmTransfer::Apic if m.flip_share > 0.0 => println!(
+            "transfer     APIC (affine part B D^-1 per point) with {} of the FLIP update blended in, MUSL; pic_fraction unused",
+            m.flip_share
+        ),
+        MpmTransfer::Apic => {
+            println!("transfer     APIC (affine part B D^-1 per point, no filter), MUSL; pic_fraction and xpic_order unused")
+        }
+        MpmTransfer::Flip => println!(
+            "transfer     FLIP less {} of the grid-invisible velocity per step ({}), MUSL (pure FLIP, 0, never lets a deposit rest; docs/mpm.md)",
+            m.pic_fraction,
+            if m.xpic_order >= 2 { "XPIC(2)" } else { "PIC blend" }
+        ),
+    }
 }
 
 /// Lattice updates per second of the LBM on this machine, 2 threads

@@ -24,7 +24,7 @@ use crate::setup::{build, MpmSetup, SetupError};
 use crate::solver::{Mpm, MpmState, PointSet};
 
 /// Version of the `/mpm/state` bincode layout.
-pub const STATE_VERSION: u32 = 1;
+pub const STATE_VERSION: u32 = 2;
 
 /// Full state at a frame (`/mpm/state`): enough to continue the run bit for bit.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -129,7 +129,7 @@ pub fn gravity_phase(scene: &Scene, mpm: &mut Mpm, stop: &AtomicBool, progress: 
     phase.time = mpm.state.time;
     mpm.params.damping = damping;
     for set in [&mut mpm.state.solid.set, &mut mpm.state.liquid.set] {
-        set.v.iter_mut().for_each(|v| *v = [0.0; 2]);
+        set.set_velocity([0.0; 2]);
     }
     mpm.state.time = 0.0;
     mpm.state.steps = 0;

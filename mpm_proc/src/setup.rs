@@ -73,6 +73,8 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         free_surface_fill: spec.free_surface_fill,
         pic_fraction: spec.pic_fraction,
         xpic_order: spec.xpic_order,
+        apic: spec.transfer == schemas::scene::MpmTransfer::Apic,
+        flip_share: spec.flip_share,
         soil: MohrCoulomb::new(
             spec.young_modulus,
             spec.poisson_ratio,
@@ -194,10 +196,15 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
     }
     let state = MpmState { time: 0.0, steps: 0, gates_held: vec![true; s.gates.len()], solid, liquid: liq };
     let mut notes = vec![format!(
-        "grid {} x {} elements of {h} m ({:?} shape functions); {} solid and {} liquid points ({a} x {b} per element); dt = {dt:.3e} s (c_max = {c_max:.1} m/s, courant {})",
+        "grid {} x {} elements of {h} m ({:?} shape functions, {} transfer); {} solid and {} liquid points ({a} x {b} per element); dt = {dt:.3e} s (c_max = {c_max:.1} m/s, courant {})",
         elements[0],
         elements[1],
         spec.shape_functions,
+        match spec.transfer {
+            schemas::scene::MpmTransfer::Apic if spec.flip_share > 0.0 => format!("APIC + {} FLIP", spec.flip_share),
+            schemas::scene::MpmTransfer::Apic => "APIC".to_string(),
+            schemas::scene::MpmTransfer::Flip => format!("FLIP, PIC share {} (order {})", spec.pic_fraction, spec.xpic_order),
+        },
         state.solid.set.len(),
         state.liquid.set.len(),
         spec.courant

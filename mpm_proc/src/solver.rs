@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::drag::DragLaw;
 use crate::grid::{Grid, Stencil};
 use crate::mohr_coulomb::MohrCoulomb;
+use schemas::scene::ShapeFunctions;
 
 /// Porosity bounds of the solid points: grains are incompressible, so n
 /// cannot leave (0, 1); the bounds keep κ and the volumes finite.
@@ -48,6 +49,14 @@ pub struct Params {
     /// 2017), which removes α of the null-space part of the point velocities
     /// while damping resolved motion far less.
     pub xpic_order: u32,
+    /// APIC transfers (Jiang et al. 2015): points take the grid's new
+    /// velocity and its affine part C_p = B_p D_p⁻¹, and give the grid
+    /// v_p + C_p (x_I − x_p); no grid-invisible velocity is kept, so no
+    /// filter is needed and `pic_fraction` is not used. false: FLIP.
+    pub apic: bool,
+    /// Under APIC, the share β of the FLIP update blended in away from held
+    /// nodes: v ← (1 − β) v_APIC + β v_FLIP (`mpm.flip_share`).
+    pub flip_share: f64,
     pub soil: MohrCoulomb,
     pub drag: DragLaw,
 }
@@ -65,6 +74,10 @@ pub struct PointSet {
     pub volume: Vec<f64>,
     /// GIMP half-widths (x, z), m.
     pub half: [f64; 2],
+    /// APIC (`Params::apic`): the affine velocity each point carries,
+    /// C = B D⁻¹ at the last update (row a: ∂v_a/∂x, ∂v_a/∂z), 1/s.
+    /// Empty under FLIP.
+    pub affine: Vec<[[f64; 2]; 2]>,
 }
 
 impl PointSet {
@@ -73,6 +86,12 @@ impl PointSet {
     }
     pub fn is_empty(&self) -> bool {
         self.x.is_empty()
+    }
+    /// Sets every point's velocity to `v`, a uniform translation, and
+    /// clears the affine part APIC carries (a velocity set by hand has none).
+    pub fn set_velocity(&mut self, v: [f64; 2]) {
+        self.v.iter_mut().for_each(|p| *p = v);
+        self.affine.iter_mut().for_each(|c| *c = [[0.0; 2]; 2]);
     }
     /// ½ Σ m v², J/m.
     pub fn kinetic_energy(&self) -> f64 {
@@ -538,22 +557,26 @@ impl Mpm {
         let (solid, liquid) = (&self.state.solid.set, &self.state.liquid.set);
         let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
         let rho_s = self.params.solid_density;
+        let (grid, apic) = (&self.grid, self.params.apic);
         let mut sums = std::mem::take(&mut self.sums);
         self.for_active_nodes(&mut sums, |node, out| {
             let mut s = NodeSums::default();
+            let at = grid.node_position(node % row, node / row);
             Self::gather(ss, row, node, |p, n, _| {
                 let m = n * solid.mass[p];
+                let v = point_velocity_at(solid, p, at, apic);
                 s.mass_s += m;
-                s.momentum_s[0] += m * solid.v[p][0];
-                s.momentum_s[1] += m * solid.v[p][1];
+                s.momentum_s[0] += m * v[0];
+                s.momentum_s[1] += m * v[1];
                 s.volume_s += n * solid.volume[p];
                 s.solid_volume += m / rho_s;
             });
             Self::gather(ls, row, node, |p, n, _| {
                 let m = n * liquid.mass[p];
+                let v = point_velocity_at(liquid, p, at, apic);
                 s.mass_l += m;
-                s.momentum_l[0] += m * liquid.v[p][0];
-                s.momentum_l[1] += m * liquid.v[p][1];
+                s.momentum_l[0] += m * v[0];
+                s.momentum_l[1] += m * v[1];
                 s.volume_l += n * liquid.volume[p];
             });
             *out = s;
@@ -868,7 +891,7 @@ impl Mpm {
 
     /// Whether the point update filters with XPIC(2).
     fn xpic_active(&self) -> bool {
-        self.params.xpic_order >= 2 && self.params.pic_fraction > 0.0
+        !self.params.apic && self.params.xpic_order >= 2 && self.params.pic_fraction > 0.0
     }
 
     // -- stage 4 ---------------------------------------------------------
@@ -884,6 +907,10 @@ impl Mpm {
     /// the wall stopped it again (a sliding block decelerated at 5 μg from
     /// these phantom normal impulses; docs/mpm.md, "Frictional walls").
     fn update_velocities(&mut self) {
+        if self.params.apic {
+            self.update_velocities_apic();
+            return;
+        }
         if self.xpic_active() {
             self.update_velocities_xpic2();
             return;
@@ -964,6 +991,76 @@ impl Mpm {
         rayon::join(|| g2p(solid, ss, 0), || g2p(liquid, ls, 1));
     }
 
+    /// APIC (Jiang et al. 2015, Eqs. 7–10): v_p ← Σ N_I v_I and
+    /// C_p ← B_p D_p⁻¹ with B_p = Σ N_I v_I ⊗ (x_I − x_p) and
+    /// D_p = Σ N_I (x_I − x_p) ⊗ (x_I − x_p), v_I the end-of-step nodal
+    /// velocity with fixities applied (as PIC's). D_p is formed per point
+    /// because GIMP's is not the constant of B-splines; for bilinear shapes
+    /// B D⁻¹ equals Σ v_I ⊗ ∇N_I exactly, which is used instead (D_p is
+    /// singular on grid lines).
+    fn update_velocities_apic(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let dt = self.params.dt;
+        let (accel, mask, contact) = (&self.accel, &self.mask, &self.fixities.contact);
+        let (vs, vl) = (&self.velocity_s, &self.velocity_l);
+        let (grid, beta) = (&self.grid, self.params.flip_share);
+        // Bilinear D_p is singular for a point on a grid line; there
+        // B D⁻¹ = Σ v_I ⊗ ∇N_I, which is defined everywhere.
+        let linear = grid.shape == ShapeFunctions::Linear;
+        let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
+            let velocity = if phase == 0 { vs } else { vl };
+            set.affine.resize(set.v.len(), [[0.0; 2]; 2]);
+            set.v
+                .par_iter_mut()
+                .zip(set.affine.par_iter_mut())
+                .zip(scratch.stencil.par_iter().zip(set.x.par_iter()))
+                .with_min_len(CHUNK)
+                .for_each(|((v, c), (st, xp))| {
+                    let mut new_v = [0.0; 2];
+                    let mut b = [[0.0; 2]; 2];
+                    let mut d = [[0.0; 2]; 2];
+                    let mut grad = [[0.0; 2]; 2];
+                    let mut flip = *v;
+                    let mut held = [false; 2];
+                    st.for_each(row, |node, n, dn| {
+                        let (acc, k, v0) = (accel[node].a[phase], mask[node], velocity[node]);
+                        let vi = [k[0] * (v0[0] + dt * acc[0]), k[1] * (v0[1] + dt * acc[1])];
+                        let xi = grid.node_position(node % row, node / row);
+                        let r = [xi[0] - xp[0], xi[1] - xp[1]];
+                        let touches_wall = n > 0.0 && contact[node] != [0.0; 2];
+                        for a in 0..2 {
+                            new_v[a] += n * vi[a];
+                            flip[a] += n * dt * acc[a];
+                            held[a] |= n > 0.0 && k[a] == 0.0 || touches_wall;
+                            grad[a][0] += vi[a] * dn[0];
+                            grad[a][1] += vi[a] * dn[1];
+                            for e in 0..2 {
+                                b[a][e] += n * vi[a] * r[e];
+                                d[a][e] += n * r[a] * r[e];
+                            }
+                        }
+                    });
+                    for a in 0..2 {
+                        v[a] = if held[a] { new_v[a] } else { (1.0 - beta) * new_v[a] + beta * flip[a] };
+                    }
+                    if linear {
+                        *c = grad;
+                        return;
+                    }
+                    let det = d[0][0] * d[1][1] - d[0][1] * d[1][0];
+                    let inv = [[d[1][1] / det, -d[0][1] / det], [-d[1][0] / det, d[0][0] / det]];
+                    for a in 0..2 {
+                        for e in 0..2 {
+                            c[a][e] = b[a][0] * inv[0][e] + b[a][1] * inv[1][e];
+                        }
+                    }
+                });
+        };
+        let (solid, liquid) = (&mut self.state.solid.set, &mut self.state.liquid.set);
+        let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
+        rayon::join(|| g2p(solid, ss, 0), || g2p(liquid, ls, 1));
+    }
+
     /// MUSL: the new point momenta mapped back give the nodal velocities the
     /// points move with; Δu = Δt v′.
     fn remap_momentum(&mut self) {
@@ -973,19 +1070,23 @@ impl Mpm {
         let (solid, liquid) = (&self.state.solid.set, &self.state.liquid.set);
         let (ss, ls) = (&self.solid_scratch, &self.liquid_scratch);
         let (sums, mask) = (&self.sums, &self.mask);
+        let (grid, apic) = (&self.grid, self.params.apic);
         let mut disp = std::mem::take(&mut self.disp);
         self.for_active_nodes(&mut disp, |node, out| {
             let mut ps = [0.0; 2];
             let mut pl = [0.0; 2];
+            let at = grid.node_position(node % row, node / row);
             Self::gather(ss, row, node, |p, n, _| {
                 let m = n * solid.mass[p];
-                ps[0] += m * solid.v[p][0];
-                ps[1] += m * solid.v[p][1];
+                let v = point_velocity_at(solid, p, at, apic);
+                ps[0] += m * v[0];
+                ps[1] += m * v[1];
             });
             Self::gather(ls, row, node, |p, n, _| {
                 let m = n * liquid.mass[p];
-                pl[0] += m * liquid.v[p][0];
-                pl[1] += m * liquid.v[p][1];
+                let v = point_velocity_at(liquid, p, at, apic);
+                pl[0] += m * v[0];
+                pl[1] += m * v[1];
             });
             let s = &sums[node];
             let k = mask[node];
@@ -1135,4 +1236,17 @@ impl Mpm {
                 x[1] = (x[1] + du[1]).clamp(lo[1], hi[1]);
             });
     }
+}
+
+/// The velocity point `p` gives the node at `at`: its own, plus under APIC
+/// its carried gradient times the offset to the node.
+#[inline(always)]
+fn point_velocity_at(set: &PointSet, p: usize, at: [f64; 2], apic: bool) -> [f64; 2] {
+    let v = set.v[p];
+    if !apic || set.affine.is_empty() {
+        return v;
+    }
+    let (c, x) = (set.affine[p], set.x[p]);
+    let d = [at[0] - x[0], at[1] - x[1]];
+    [v[0] + c[0][0] * d[0] + c[0][1] * d[1], v[1] + c[1][0] * d[0] + c[1][1] * d[1]]
 }

@@ -5,15 +5,9 @@ mod common;
 
 use std::sync::atomic::AtomicBool;
 
-use mpm_proc::run::{gravity_phase, Progress};
+use common::Quiet;
+use mpm_proc::run::gravity_phase;
 use mpm_proc::setup::build;
-
-struct Quiet;
-impl Progress for Quiet {
-    fn gravity_phase(&mut self, _: f64, _: f64) {}
-    fn collapse(&mut self, _: f64, _: f64, _: u64) {}
-    fn log(&mut self, _: &str) {}
-}
 
 const G: f64 = 9.81;
 

@@ -292,10 +292,11 @@ pub struct MpmSpec {
     #[serde(default)]
     pub shape_functions: ShapeFunctions,
     /// Fraction of the CFL step h / c_max taken, c_max the fastest wave
-    /// (undrained P-wave, liquid compression, dry P-wave). Default 0.8: on
-    /// the saturated lab column 0.5, 0.8 and 0.98 (Anura3D's) give runouts
-    /// within 1.6 % of each other, inside the run-to-run round-off spread
-    /// (docs/mpm.md, "Time step").
+    /// (undrained P-wave, liquid compression, dry P-wave). Default 0.5:
+    /// APIC's stable limit is lower than FLIP's; an elastic block settling
+    /// under gravity held at 0.75 and blew up at 0.8 (FLIP and PIC held at
+    /// 0.8). Under FLIP the saturated lab column's runout moved by 1.6 %
+    /// between 0.5, 0.8 and 0.98 (Anura3D's) (docs/mpm.md, "Time step").
     #[serde(default = "default_mpm_courant")]
     pub courant: f64,
     /// Skeleton Young's modulus E, Pa. Default 1e7.
@@ -350,12 +351,14 @@ pub struct MpmSpec {
     /// the free surface and has zero pore pressure. Default 0.8.
     #[serde(default = "default_mpm_fill")]
     pub free_surface_fill: f64,
-    /// Share of the grid (PIC) velocity blended into each point's FLIP
-    /// update, per step. Pure FLIP (0) keeps point-velocity components the
-    /// grid cannot see: next to the rough floor they grew to 1 m/s while the
-    /// points moved at 1 cm/s, and no deposit came to rest. Default 0.001:
-    /// the lab columns then stop by 5 t_ref; 0.01 already takes a third of
-    /// the saturated column's peak kinetic energy (docs/mpm.md, "FLIP, XPIC and fixed nodes").
+    /// Under `transfer = "flip"`: share of the grid (PIC) velocity blended
+    /// into each point's FLIP update, per step. Pure FLIP (0) keeps
+    /// point-velocity components the grid cannot see: next to the rough
+    /// floor they grew to 1 m/s while the points moved at 1 cm/s, and no
+    /// deposit came to rest. Default 0.001: the lab columns then stop by
+    /// 5 t_ref; 0.01 already takes a third of the saturated column's peak
+    /// kinetic energy (docs/mpm.md, "FLIP, XPIC and fixed nodes"). Unused
+    /// under `apic`, which keeps no grid-invisible velocity to filter.
     #[serde(default = "default_mpm_pic")]
     pub pic_fraction: f64,
     /// How the share `pic_fraction` is taken: 1, plain PIC blended into
@@ -365,6 +368,23 @@ pub struct MpmSpec {
     /// same share, pure FLIP 2.20). Default 2.
     #[serde(default = "default_xpic_order")]
     pub xpic_order: u32,
+    /// Point–grid transfer: `apic` (default; affine PIC, Jiang et al.
+    /// 2015, the affine part C = B D⁻¹ carried per point: no
+    /// grid-invisible velocities, so no filter; `pic_fraction` and
+    /// `xpic_order` unused) or `flip` (FLIP with the share above). On the
+    /// DEM's frictional floor FLIP + XPIC runs the lab columns out 2.2–2.8×
+    /// further and does not hold as the rough floor when the floor's
+    /// friction is far above the soil's (docs/mpm.md, "Which transfer").
+    #[serde(default)]
+    pub transfer: MpmTransfer,
+    /// Under `transfer = "apic"`: share β of the FLIP update blended into
+    /// APIC's, v_p ← (1 − β) v_APIC + β v_FLIP, away from held nodes. APIC
+    /// drops the part of the point velocities the grid cannot see each step
+    /// (its numerical dissipation); β keeps that share of it for one more
+    /// step, so β = 0.5 roughly halves the dissipation. For sensitivity
+    /// studies; 0 (default) is plain APIC. Must stay 0 under `flip`.
+    #[serde(default)]
+    pub flip_share: f64,
     /// `k0` (default): effective stresses σ'_h = K0 σ'_v with K0 = ν/(1−ν)
     /// and hydrostatic pore pressure, then the gravity phase; `zero`:
     /// stress-free start (gravity applied suddenly at t = 0, no gravity phase).
@@ -433,7 +453,7 @@ fn default_mpm_points() -> u32 {
     12
 }
 fn default_mpm_courant() -> f64 {
-    0.8
+    0.5
 }
 fn default_mpm_young() -> f64 {
     1.0e7
@@ -510,6 +530,17 @@ pub enum MpmFloor {
     /// Normal velocity fixed; the solid slides with Coulomb friction
     /// `wall_friction`, the liquid slips freely.
     Frictional,
+}
+
+/// How MPM points and grid exchange velocities.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MpmTransfer {
+    /// FLIP with a PIC/XPIC share (`pic_fraction`, `xpic_order`).
+    Flip,
+    /// Affine PIC: points take the grid velocity and its affine part.
+    #[default]
+    Apic,
 }
 
 /// How the MPM soil's stresses start.
@@ -1328,6 +1359,26 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
     v.positive("mpm.ergun_b", m.ergun_b);
     v.half_open("mpm.free_surface_fill", m.free_surface_fill, 0.0, 1.0);
     v.in_range("mpm.pic_fraction", m.pic_fraction, 0.0, 1.0);
+    if m.transfer == MpmTransfer::Apic && m.shape_functions == ShapeFunctions::Linear {
+        // Measured: a block sliding on a frictional floor blew up once its
+        // points crossed a grid line (the bilinear gradient jumps there and
+        // APIC carries it); the GIMP weights and gradients are continuous.
+        v.fail(
+            "mpm.transfer",
+            "APIC with shape_functions = \"linear\" is unstable when points cross grid lines; use shape_functions = \"gimp\" or transfer = \"flip\"".to_string(),
+        );
+    }
+    if m.flip_share != 0.0 && m.transfer != MpmTransfer::Apic {
+        v.fail(
+            "mpm.flip_share",
+            format!(
+                "= {} blends FLIP into APIC and needs mpm.transfer = \"apic\"; under \"flip\" the PIC share is mpm.pic_fraction",
+                m.flip_share
+            ),
+        );
+    } else if !(0.0..1.0).contains(&m.flip_share) {
+        v.fail("mpm.flip_share", format!("must be in [0, 1) (1 would be FLIP without a filter), got {}", m.flip_share));
+    }
     if !(1..=2).contains(&m.xpic_order) {
         v.fail("mpm.xpic_order", format!("must be 1 (PIC) or 2 (XPIC(2)), got {}", m.xpic_order));
     }

@@ -235,6 +235,10 @@ fn valid_mpm_scene_loads_without_dem_or_lbm() {
     let m = s.mpm();
     assert_eq!((m.element_size, m.points_per_element, m.point_grid()), (0.004, 12, (4, 3)));
     assert_eq!((s.mpm_grid().nx, s.mpm_grid().nz), (175, 30));
+    assert_eq!((m.transfer, m.flip_share), (schemas::scene::MpmTransfer::Apic, 0.0));
+    // FLIP blended into APIC is an APIC setting; under FLIP the share is pic_fraction.
+    let e = load(MPM, &["mpm.transfer=\"flip\"", "mpm.flip_share=0.5"]).unwrap_err();
+    assert!(e.names_key("mpm.flip_share") && e.to_string().contains("mpm.pic_fraction"), "{e}");
     // The resolved scene keeps the method and reloads.
     let again = load(&s.to_toml(), &[]).unwrap();
     assert_eq!(again.method(), Method::Mpm);
@@ -296,6 +300,10 @@ const BAD_MPM: &[(&str, &str, &str)] = &[
     ("mpm.gravity_phase_rest_speed=0", "mpm.gravity_phase_rest_speed", "> 0"),
     ("mpm.top_load=-5", "mpm.top_load", ">= 0"),
     ("mpm.shape_functions=\"cpdi\"", "mpm.shape_functions", "unknown variant"),
+    ("mpm.transfer=\"pic\"", "mpm.transfer", "unknown variant"),
+    ("mpm.shape_functions=\"linear\"", "mpm.transfer", "unstable when points cross grid lines"),
+    ("mpm.flip_share=1", "mpm.flip_share", "[0, 1)"),
+    ("mpm.flip_share=-0.5", "mpm.flip_share", "[0, 1)"),
     ("mpm.initial_stress=\"k1\"", "mpm.initial_stress", "unknown variant"),
     ("mpm.elemnt_size=0.004", "mpm.elemnt_size", "unknown field"),
     // The scene as the MPM sees it.

@@ -1,9 +1,21 @@
 //! Scenes the MPM tests build from TOML text (validated like a user's file).
 
+use mpm_proc::run::Progress;
 use schemas::Scene;
+
+/// Progress that reports nothing (tests check numbers, not the log).
+#[allow(dead_code)] // not every test file runs a gravity phase
+pub struct Quiet;
+
+impl Progress for Quiet {
+    fn gravity_phase(&mut self, _: f64, _: f64) {}
+    fn collapse(&mut self, _: f64, _: f64, _: u64) {}
+    fn log(&mut self, _: &str) {}
+}
 
 /// A saturated or dry soil column `width` × `height` (m) in a box `box_height`
 /// tall, with the given `[mpm]` lines and liquid up to `water` (None: dry).
+#[allow(dead_code)] // not every test file builds a column
 pub fn column(
     width: f64,
     height: f64,
