@@ -4,13 +4,14 @@
 # dissipation halved (flip_share 0.5) and doubled (courant 0.25), under
 # FLIP + XPIC (the old default), on the rough floor and on mu = 10 and
 # mu = 0 floors,
-# with 3 and 6 points per element and on 2.86 and 2 mm elements. Prints one
+# with 3 and 6 points per element, on 2.86, 2 and 1.43 mm elements, and
+# with friction angles 30, 25, 20 degrees (the DEM's deposit is flatter). Prints one
 # line per run: solid runout (0.5 % mass front), front at 1/2/4 t_ref, the
 # pile edge (first deposit column below one grain, the DEM's rule), the
 # liquid front at the end, status, t/t_ref, wall time.
 # usage: [BIN=DIR] bash bench/mpm_transfer_study.sh [OUT_DIR] ["case ..."]
-#   (default runs/mpm_transfer; all cases ~40 min on 2 cores, the 2 mm
-#   saturated ones most of it). Finished cases are skipped.
+#   (default runs/mpm_transfer; all cases ~70 min on 2 cores, the 2 and
+#   1.43 mm saturated ones most of it). Finished cases are skipped.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/mpm_transfer}
@@ -20,6 +21,7 @@ if [ -z "$bin" ]; then
   bin=target/release
 fi
 h286=0.002857142857142857
+h143=0.0014285714285714286
 declare -A sets=(
   [dry]="" [sat]=""
   [dry_beta05]="--set mpm.flip_share=0.5" [sat_beta05]="--set mpm.flip_share=0.5"
@@ -32,11 +34,25 @@ declare -A sets=(
   [dry_ppe3]="--set mpm.points_per_element=3" [sat_ppe3]="--set mpm.points_per_element=3"
   [dry_h286]="--set mpm.element_size=$h286" [sat_h286]="--set mpm.element_size=$h286"
   [dry_h2]="--set mpm.element_size=0.002" [sat_h2]="--set mpm.element_size=0.002"
+  [dry_h143]="--set mpm.element_size=$h143" [sat_h143]="--set mpm.element_size=$h143"
+  [dry_phi30]="--set mpm.friction_angle=30" [dry_phi25]="--set mpm.friction_angle=25"
+  [dry_phi20]="--set mpm.friction_angle=20"
+  [dry_beta075]="--set mpm.flip_share=0.75" [dry_beta09]="--set mpm.flip_share=0.9"
+  [dry_beta097]="--set mpm.flip_share=0.97" [dry_beta099]="--set mpm.flip_share=0.99"
+  [dry_flip05]="--set mpm.transfer=\"flip\""
+  [dry_flip05_pic01]="--set mpm.transfer=\"flip\" --set mpm.pic_fraction=0.01 --set mpm.xpic_order=1"
+  [dry_flip05_pic03]="--set mpm.transfer=\"flip\" --set mpm.pic_fraction=0.03 --set mpm.xpic_order=1"
+  [sat_phi30]="--set mpm.friction_angle=30" [sat_phi25]="--set mpm.friction_angle=25"
+  [sat_nmax08]="--set mpm.max_porosity=0.8"
+  [dry_h2_phi25]="--set mpm.element_size=0.002 --set mpm.friction_angle=25"
+  [sat_h2_phi25]="--set mpm.element_size=0.002 --set mpm.friction_angle=25"
   [dry_h2_beta05]="--set mpm.element_size=0.002 --set mpm.flip_share=0.5"
   [sat_h2_beta05]="--set mpm.element_size=0.002 --set mpm.flip_share=0.5"
 )
-order="dry dry_beta05 dry_c025 dry_flip08 dry_rough dry_mu10 dry_mu0 dry_ppe6 dry_ppe3 dry_h286 dry_h2 dry_h2_beta05
-       sat sat_beta05 sat_c025 sat_flip08 sat_rough sat_ppe6 sat_ppe3 sat_h286 sat_h2 sat_h2_beta05"
+order="dry dry_beta05 dry_c025 dry_flip08 dry_rough dry_mu10 dry_mu0 dry_ppe6 dry_ppe3 dry_h286 dry_h2 dry_h143 dry_h2_beta05
+       dry_phi30 dry_phi25 dry_phi20 dry_beta075 dry_beta09 dry_beta097 dry_beta099
+       dry_flip05 dry_flip05_pic01 dry_flip05_pic03 dry_h2_phi25
+       sat sat_beta05 sat_c025 sat_flip08 sat_rough sat_ppe6 sat_ppe3 sat_h286 sat_h2 sat_h143 sat_h2_beta05 sat_phi30 sat_phi25 sat_nmax08 sat_h2_phi25"
 cases=${2:-$order}
 mkdir -p "$out"
 for c in $cases; do
