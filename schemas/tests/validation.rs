@@ -411,6 +411,6 @@ fn saturated_column_runs_as_mpm() {
     assert_eq!((s.mpm_grid().nx, s.mpm_grid().nz), (175, 30));
     assert_eq!(s.mpm_porosity(), Some(0.42));
     let t = s.mpm_time_step();
-    // Δt = 0.8 (default courant) · 0.004 / c_u, c_u = 178.0 m/s at n0 = 0.42.
-    assert!((t.dt - 1.7978e-5).abs() < 1e-8, "{t:?}");
+    // Δt = 0.5 (default courant) · 0.004 / c_u, c_u = 178.0 m/s at n0 = 0.42.
+    assert!((t.dt - 1.1237e-5).abs() < 1e-8, "{t:?}");
 }
