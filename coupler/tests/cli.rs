@@ -144,6 +144,17 @@ fn check_reports_the_mpm_column() {
         .unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("an explicit drag would be unstable; mpm_proc integrates it implicitly"), "{text}");
+    // APIC above its measured stable step; FLIP is not warned at the same step.
+    let check_at = |transfer: &str| {
+        let out = coupler()
+            .args(["check", "scenes/ceccato2020/mpm_dry_h060.toml", "--set", "mpm.courant=0.8", "--set"])
+            .arg(format!("mpm.transfer=\"{transfer}\""))
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    assert!(check_at("apic").contains("mpm.courant = 0.8 under APIC: an elastic block held at 0.75"));
+    assert!(check_at("flip").contains("warnings     none"), "{}", check_at("flip"));
 }
 
 /// `coupler check` accepts every MPM scene shipped.
