@@ -367,6 +367,9 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
             "{ppe} points per element with two phases: the paper saw instabilities with 3 points per element (12 work; here 3 ran the saturated lab column stably, its runout 4 % from 12's, docs/mpm.md); raise mpm.points_per_element"
         ));
     }
+    if let Some(unused) = schemas::scene::unused_flip_keys(&m) {
+        warnings.push(unused);
+    }
     if m.transfer == MpmTransfer::Apic && m.courant > 0.7 {
         warnings.push(format!(
             "mpm.courant = {} under APIC: an elastic block held at 0.75 and blew up at 0.8 (docs/mpm.md, \"Time step\"); soil that yields may survive it, stiff or cohesive parts may not; use 0.7 or less",
@@ -402,7 +405,7 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
     );
     match m.transfer {
         MpmTransfer::Apic if m.flip_share > 0.0 => println!(
-            "transfer     APIC (affine part B D^-1 per point) with {} of the FLIP update blended in, MUSL; pic_fraction unused",
+            "transfer     APIC (affine part B D^-1 per point) with {} of the FLIP update blended in, MUSL; pic_fraction and xpic_order unused",
             m.flip_share
         ),
         MpmTransfer::Apic => {

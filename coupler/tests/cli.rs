@@ -155,6 +155,16 @@ fn check_reports_the_mpm_column() {
     };
     assert!(check_at("apic").contains("mpm.courant = 0.8 under APIC: an elastic block held at 0.75"));
     assert!(check_at("flip").contains("warnings     none"), "{}", check_at("flip"));
+    // FLIP's filter keys set under APIC are named as unused.
+    let out = coupler()
+        .args(["check", "scenes/ceccato2020/mpm_sat_h060.toml", "--set", "mpm.pic_fraction=0"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("mpm.pic_fraction = 0 and mpm.xpic_order = 2 are unused under mpm.transfer = \"apic\""),
+        "{text}"
+    );
 }
 
 /// `coupler check` accepts every MPM scene shipped.

@@ -209,6 +209,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         state.liquid.set.len(),
         spec.courant
     )];
+    notes.extend(schemas::scene::unused_flip_keys(&spec));
     if soil.is_some() && liquid.is_some() {
         notes.push(format!(
             "soil: n0 = {n0}, D = {grain} m, permeability {:.3e} m^2 (hydraulic conductivity {:.3e} m/s), quadratic drag {}",

@@ -415,9 +415,11 @@ impl Mpm {
 
     /// Kinetic energy of the solid and of the liquid momenta as the grid
     /// holds them, Σ_I |p_I|²/(2 m_I) over the nodes, J/m, from the map at
-    /// the start of the last step (fixities not applied). Never above the
-    /// points' own (Jensen); the difference is motion the grid cannot see
-    /// (the null space of the map, which FLIP keeps and nothing acts on).
+    /// the start of the last step (fixities not applied). Under FLIP never
+    /// above the points' own (Jensen); the difference is motion the grid
+    /// cannot see (the null space of the map, which FLIP keeps and nothing
+    /// acts on). Under APIC it can exceed ½ Σ m v², which leaves out the
+    /// points' affine part.
     pub fn grid_kinetic_energy(&self) -> (f64, f64) {
         let row = self.grid.node_dims()[0];
         let tol = self.mass_tolerance;
@@ -995,9 +997,10 @@ impl Mpm {
     /// C_p ← B_p D_p⁻¹ with B_p = Σ N_I v_I ⊗ (x_I − x_p) and
     /// D_p = Σ N_I (x_I − x_p) ⊗ (x_I − x_p), v_I the end-of-step nodal
     /// velocity with fixities applied (as PIC's). D_p is formed per point
-    /// because GIMP's is not the constant of B-splines; for bilinear shapes
-    /// B D⁻¹ equals Σ v_I ⊗ ∇N_I exactly, which is used instead (D_p is
-    /// singular on grid lines).
+    /// because GIMP's is not the constant of B-splines. For bilinear shapes
+    /// B D⁻¹ equals Σ v_I ⊗ ∇N_I, which is used instead (D_p is singular
+    /// on grid lines); scene validation refuses APIC with linear shapes
+    /// (unstable at cell crossings), so only a hand-built `Params` gets it.
     fn update_velocities_apic(&mut self) {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;

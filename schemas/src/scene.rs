@@ -295,7 +295,7 @@ pub struct MpmSpec {
     /// (undrained P-wave, liquid compression, dry P-wave). Default 0.5:
     /// APIC's stable limit is lower than FLIP's; an elastic block settling
     /// under gravity held at 0.75 and blew up at 0.8 (FLIP and PIC held at
-    /// 0.8). Under FLIP the saturated lab column's runout moved by 1.6 %
+    /// 0.8). Under FLIP the saturated lab column's runout moved by 2.5 %
     /// between 0.5, 0.8 and 0.98 (Anura3D's) (docs/mpm.md, "Time step").
     #[serde(default = "default_mpm_courant")]
     pub courant: f64,
@@ -372,7 +372,7 @@ pub struct MpmSpec {
     /// 2015, the affine part C = B D⁻¹ carried per point: no
     /// grid-invisible velocities, so no filter; `pic_fraction` and
     /// `xpic_order` unused) or `flip` (FLIP with the share above). On the
-    /// DEM's frictional floor FLIP + XPIC runs the lab columns out 2.2–2.8×
+    /// DEM's frictional floor FLIP + XPIC runs the lab columns out 2.3–3.0×
     /// further and does not hold as the rough floor when the floor's
     /// friction is far above the soil's (docs/mpm.md, "Which transfer").
     #[serde(default)]
@@ -541,6 +541,18 @@ pub enum MpmTransfer {
     /// Affine PIC: points take the grid velocity and its affine part.
     #[default]
     Apic,
+}
+
+/// A note when FLIP-only keys differ from their defaults under APIC, where
+/// they are unused (a scene written for FLIP now runs APIC without them).
+pub fn unused_flip_keys(m: &MpmSpec) -> Option<String> {
+    let changed = m.pic_fraction != default_mpm_pic() || m.xpic_order != default_xpic_order();
+    (m.transfer == MpmTransfer::Apic && changed).then(|| {
+        format!(
+            "mpm.pic_fraction = {} and mpm.xpic_order = {} are unused under mpm.transfer = \"apic\" (no filter); set mpm.transfer = \"flip\" to use them, or remove them",
+            m.pic_fraction, m.xpic_order
+        )
+    })
 }
 
 /// How the MPM soil's stresses start.

@@ -57,8 +57,8 @@ fn dry_mpm_column_collapses_and_stops() {
     // slope at φ = 35° reaches L_f = √(2 L0 H0 / tan φ) = 0.083 m, runout
     // 1.07; less would leave a slope steeper than φ (the rough floor gives
     // 1.16). Upper bound: the floor's friction must hold the mass back;
-    // without it (wall_friction = 0) the column slides past 2.8
-    // (docs/mpm.md, "Which transfer").
+    // without it (wall_friction = 0) the column slides to 7.4 and does not
+    // stop by 12 t_ref (docs/RESULTS.md, "MPM beside DEM–LBM").
     assert!(runout > 1.07 && runout < 2.8, "runout {runout}");
     // The deposit's mean slope (pile top to front) stays below φ = 35°.
     let deposit = s["deposit"].as_array().unwrap();
@@ -119,7 +119,7 @@ fn saturated_mpm_column_runs_out_further_than_the_dry_one() {
     assert_eq!(s["method"], "mpm");
     // It comes to rest (the dry test's rule) before its end time. On the
     // rough floor it does not: water draining through the toe keeps the
-    // front creeping 2 % per 2 t_ref (docs/mpm.md, "Which transfer").
+    // front creeping 2 % per 2 t_ref (docs/mpm.md, "The lab columns").
     assert_eq!(s["status"], "at_rest", "the saturated column never came to rest");
     let mpm = &s["mpm"];
     assert_eq!(mpm["solid_points"].as_u64().unwrap(), 1800);
