@@ -295,8 +295,15 @@ impl std::fmt::Debug for Mpm {
 
 impl Mpm {
     /// A solver over `grid` from `state`. Preconditions: points inside the
-    /// box; `fixities.base` sized to the grid's nodes.
+    /// box; `fixities.base` sized to the grid's nodes; GIMP shapes under
+    /// APIC (panics otherwise).
     pub fn new(params: Params, grid: Grid, state: MpmState, fixities: Fixities) -> Self {
+        // Scene validation refuses the pair with the fix; this guards a
+        // hand-built `Params` (bilinear D_p is singular on grid lines).
+        assert!(
+            !(params.apic && grid.shape == ShapeFunctions::Linear),
+            "APIC needs GIMP shape functions (mpm.shape_functions = \"gimp\")"
+        );
         let nodes = grid.node_count();
         let [row, rows] = grid.node_dims();
         let mut full_volume = vec![0.0; nodes];
@@ -997,19 +1004,16 @@ impl Mpm {
     /// C_p ← B_p D_p⁻¹ with B_p = Σ N_I v_I ⊗ (x_I − x_p) and
     /// D_p = Σ N_I (x_I − x_p) ⊗ (x_I − x_p), v_I the end-of-step nodal
     /// velocity with fixities applied (as PIC's). D_p is formed per point
-    /// because GIMP's is not the constant of B-splines. For bilinear shapes
-    /// B D⁻¹ equals Σ v_I ⊗ ∇N_I, which is used instead (D_p is singular
-    /// on grid lines); scene validation refuses APIC with linear shapes
-    /// (unstable at cell crossings), so only a hand-built `Params` gets it.
+    /// because GIMP's is not the constant of B-splines; GIMP's D_p is never
+    /// singular (bilinear D_p is, on grid lines, and APIC with bilinear
+    /// shapes blew up at cell crossings: `Mpm::new` refuses the pair).
     fn update_velocities_apic(&mut self) {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
         let (accel, mask, contact) = (&self.accel, &self.mask, &self.fixities.contact);
         let (vs, vl) = (&self.velocity_s, &self.velocity_l);
         let (grid, beta) = (&self.grid, self.params.flip_share);
-        // Bilinear D_p is singular for a point on a grid line; there
-        // B D⁻¹ = Σ v_I ⊗ ∇N_I, which is defined everywhere.
-        let linear = grid.shape == ShapeFunctions::Linear;
+        let blend = beta > 0.0;
         let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
             let velocity = if phase == 0 { vs } else { vl };
             set.affine.resize(set.v.len(), [[0.0; 2]; 2]);
@@ -1022,33 +1026,35 @@ impl Mpm {
                     let mut new_v = [0.0; 2];
                     let mut b = [[0.0; 2]; 2];
                     let mut d = [[0.0; 2]; 2];
-                    let mut grad = [[0.0; 2]; 2];
                     let mut flip = *v;
                     let mut held = [false; 2];
-                    st.for_each(row, |node, n, dn| {
-                        let (acc, k, v0) = (accel[node].a[phase], mask[node], velocity[node]);
-                        let vi = [k[0] * (v0[0] + dt * acc[0]), k[1] * (v0[1] + dt * acc[1])];
-                        let xi = grid.node_position(node % row, node / row);
+                    // The stencil's nodes in order, l outer and j inner from
+                    // its base: their positions without a division per node.
+                    let (base, mut k) = (st.base as usize, 0usize);
+                    let (c0, r0) = (base % row, base / row);
+                    st.for_each(row, |node, n, _| {
+                        let (acc, m, v0) = (accel[node].a[phase], mask[node], velocity[node]);
+                        let vi = [m[0] * (v0[0] + dt * acc[0]), m[1] * (v0[1] + dt * acc[1])];
+                        let xi = grid.node_position(c0 + k % 3, r0 + k / 3);
+                        k += 1;
                         let r = [xi[0] - xp[0], xi[1] - xp[1]];
-                        let touches_wall = n > 0.0 && contact[node] != [0.0; 2];
                         for a in 0..2 {
                             new_v[a] += n * vi[a];
-                            flip[a] += n * dt * acc[a];
-                            held[a] |= n > 0.0 && k[a] == 0.0 || touches_wall;
-                            grad[a][0] += vi[a] * dn[0];
-                            grad[a][1] += vi[a] * dn[1];
                             for e in 0..2 {
                                 b[a][e] += n * vi[a] * r[e];
                                 d[a][e] += n * r[a] * r[e];
                             }
                         }
+                        if blend {
+                            let touches_wall = n > 0.0 && contact[node] != [0.0; 2];
+                            for a in 0..2 {
+                                flip[a] += n * dt * acc[a];
+                                held[a] |= n > 0.0 && m[a] == 0.0 || touches_wall;
+                            }
+                        }
                     });
                     for a in 0..2 {
-                        v[a] = if held[a] { new_v[a] } else { (1.0 - beta) * new_v[a] + beta * flip[a] };
-                    }
-                    if linear {
-                        *c = grad;
-                        return;
+                        v[a] = if !blend || held[a] { new_v[a] } else { (1.0 - beta) * new_v[a] + beta * flip[a] };
                     }
                     let det = d[0][0] * d[1][1] - d[0][1] * d[1][0];
                     let inv = [[d[1][1] / det, -d[0][1] / det], [-d[1][0] / det, d[0][0] / det]];
