@@ -1,7 +1,7 @@
 //! `coupler check`: what a run of the scene will be, without running it.
 
 use schemas::mpm;
-use schemas::scene::{Face, InitialStress, MpmFloor, MpmTransfer, PackingSpec, Scene};
+use schemas::scene::{Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmTransfer, PackingSpec, Scene};
 use schemas::Method;
 
 use dem_proc::packing::{cache_path, generate};
@@ -329,8 +329,16 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
     }
     if let Some(liquid) = s.fluids.first() {
         println!(
-            "liquid model K_L {:.3e} Pa, rho_L {} kg/m³, mu {:e} Pa s; tension up to {} Pa; free surface below fill {}",
-            m.liquid_bulk_modulus, liquid.density, liquid.viscosity, m.cavitation_threshold, m.free_surface_fill
+            "liquid model K_L {:.3e} Pa, rho_L {} kg/m³, mu {:e} Pa s; tension up to {} Pa; free surface below fill {} (point or element); {}",
+            m.liquid_bulk_modulus,
+            liquid.density,
+            liquid.viscosity,
+            m.cavitation_threshold,
+            m.free_surface_fill,
+            match m.pressure_reconstruction {
+                MpmPressureReconstruction::Linear => "pore pressure a least-squares plane per element",
+                MpmPressureReconstruction::None => "pore pressure per point",
+            }
         );
     }
     if let Some(drag) = scene.mpm_drag() {

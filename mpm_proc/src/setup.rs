@@ -74,6 +74,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         pic_fraction: spec.pic_fraction,
         xpic_order: spec.xpic_order,
         apic: spec.transfer == schemas::scene::MpmTransfer::Apic,
+        linear_pressure: spec.pressure_reconstruction == schemas::scene::MpmPressureReconstruction::Linear,
         flip_share: spec.flip_share,
         soil: MohrCoulomb::new(
             spec.young_modulus,

@@ -57,6 +57,9 @@ pub struct Params {
     /// Under APIC, the share β of the FLIP update blended in away from held
     /// nodes: v ← (1 − β) v_APIC + β v_FLIP (`mpm.flip_share`).
     pub flip_share: f64,
+    /// Refit each element's pore pressures to a least-squares plane every
+    /// step (`mpm.pressure_reconstruction = "linear"`).
+    pub linear_pressure: bool,
     pub soil: MohrCoulomb,
     pub drag: DragLaw,
 }
@@ -208,8 +211,34 @@ struct ElementScratch {
     /// is the skeleton's own porosity there, sharp at a soil–water boundary.
     grain_volume: Vec<f64>,
     solid_point_volume: Vec<f64>,
+    /// Σ m_L/ρ_L of the liquid points in the element: the water's own volume.
+    liquid_volume: Vec<f64>,
+    /// Volume-weighted moments of the pressured liquid points about the
+    /// element's centre, offsets in elements: Σw, Σwξ, Σwζ, Σwξ², Σwξζ,
+    /// Σwζ², Σwp, Σwξp, Σwζp.
+    pressure_moments: Vec<[f64; 9]>,
     /// Δε_w of the pressure update.
     volumetric_strain: Vec<f64>,
+}
+
+impl ElementScratch {
+    /// Filling ratio F_e of element `e` (area `area`): the share of the
+    /// space its grains leave that water fills, Σ m_L/ρ_L / (area − Σ m_s/ρ_s),
+    /// from the points' masses alone (the points' own porosities and
+    /// volumes drift from the element's packing in a flow). 1 in a
+    /// saturated element however dilated; below 1 where the pores have
+    /// drained (the element of the lab column's 5.7 kPa spike: 0.40) or
+    /// the element is part empty (a flow's surface, a thinning layer on
+    /// the floor); the water's own fill in free water. Infinite where the
+    /// grains leave no space.
+    fn filling_ratio(&self, e: usize, area: f64) -> f64 {
+        let space = area - self.grain_volume[e];
+        if space > 0.0 {
+            self.liquid_volume[e] / space
+        } else {
+            f64::INFINITY
+        }
+    }
 }
 
 /// Nodal fixities: 1 free, 0 fixed, per component (both phases alike).
@@ -345,6 +374,8 @@ impl Mpm {
                 solid_mass_fluidised: vec![0.0; ne],
                 grain_volume: vec![0.0; ne],
                 solid_point_volume: vec![0.0; ne],
+                liquid_volume: vec![0.0; ne],
+                pressure_moments: vec![[0.0; 9]; ne],
                 volumetric_strain: vec![0.0; ne],
             },
             sums: vec![NodeSums::default(); nodes],
@@ -409,6 +440,7 @@ impl Mpm {
         self.remap_momentum();
         self.volumetric_strain_per_element();
         self.update_points();
+        self.reconstruct_pressure();
         self.state.time += self.params.dt;
         self.state.steps += 1;
         if let (Some(t0), Some(t1), Some(t2), Some(t3)) = (t0, t1, t2, t3) {
@@ -506,8 +538,11 @@ impl Mpm {
         e.solid_mass_fluidised.fill(0.0);
         e.grain_volume.fill(0.0);
         e.solid_point_volume.fill(0.0);
-        for &el in &self.liquid_scratch.element {
+        e.liquid_volume.fill(0.0);
+        let liquid = &self.state.liquid.set;
+        for (p, &el) in self.liquid_scratch.element.iter().enumerate() {
             e.liquid_points[el as usize] += 1;
+            e.liquid_volume[el as usize] += liquid.mass[p] / self.params.liquid_density;
         }
         let solid = &self.state.solid;
         for (p, &el) in self.solid_scratch.element.iter().enumerate() {
@@ -1204,6 +1239,7 @@ impl Mpm {
         let (lo, hi) = (grid.origin, grid.far_corner());
         let (k, rho_l, mu, dt, cav, fs_fill) =
             (p.bulk_modulus, p.liquid_density, p.viscosity, p.dt, p.cavitation, p.free_surface_fill);
+        let element_area = grid.h * grid.h;
         l.set
             .x
             .par_iter_mut()
@@ -1217,7 +1253,10 @@ impl Mpm {
             .for_each(|(i, (((((x, vol), pr), tau), free), &m))| {
                 let st = &scratch.stencil[i];
                 let e = scratch.element[i] as usize;
-                *free = fill[i] < fs_fill;
+                // A part-empty element (drained pores, a flow's surface, a
+                // thinning layer) is the free surface's: its strain closes
+                // the empty part rather than compressing the water.
+                *free = fill[i] < fs_fill || el.filling_ratio(e, element_area) < fs_fill;
                 *pr = if *free { 0.0 } else { (*pr - k * el.volumetric_strain[e]).max(-cav) };
                 let de = st.strain(row, |i| disp[i][1]);
                 let (solid_mass, fluidised_mass) = (el.solid_mass_solid[e], el.solid_mass_fluidised[e]);
@@ -1247,6 +1286,101 @@ impl Mpm {
     }
 }
 
+impl Mpm {
+    /// Pore pressure as a plane per element (`Params::linear_pressure`).
+    ///
+    /// The increments of step 9 are per element, so points in one element
+    /// differ only by the pressures they carried in: a point that brings an
+    /// excess into an element keeps it for good (4.4 kPa beside
+    /// neighbours at 41 Pa in the saturated lab column), a sub-element mode
+    /// no nodal force sees. Each element's pressured (not free-surface)
+    /// points are given the volume-weighted least-squares plane through
+    /// their pressures: the mean pressure × volume of the element is kept,
+    /// a linear field (hydrostatic) is reproduced exactly, and the
+    /// sub-element outliers are gone. A direction along which the points
+    /// spread less than a tenth of an element (a single row) gets no slope.
+    /// As the moving-least-squares density filters of SPH (Colagrossi &
+    /// Landrini 2003), here with the element as the kernel.
+    /// Post: p ≥ −T_cav at every point; free-surface points keep p = 0.
+    fn reconstruct_pressure(&mut self) {
+        if !self.params.linear_pressure {
+            return;
+        }
+        let grid = self.grid;
+        let (h, nx, origin) = (grid.h, grid.elements[0], grid.origin);
+        let offset = move |e: usize, x: [f64; 2]| {
+            let (i, k) = ((e % nx) as f64 + 0.5, (e / nx) as f64 + 0.5);
+            [(x[0] - origin[0]) / h - i, (x[1] - origin[1]) / h - k]
+        };
+        let l = &mut self.state.liquid;
+        let element = &self.liquid_scratch.element;
+        let moments = &mut self.elements.pressure_moments;
+        moments.fill([0.0; 9]);
+        for p in 0..l.set.len() {
+            if l.free_surface[p] {
+                continue;
+            }
+            let e = element[p] as usize;
+            let [a, b] = offset(e, l.set.x[p]);
+            let (w, pr) = (l.set.volume[p], l.pressure[p]);
+            let m = &mut moments[e];
+            for (slot, value) in m.iter_mut().zip([1.0, a, b, a * a, a * b, b * b, pr, a * pr, b * pr]) {
+                *slot += w * value;
+            }
+        }
+        let cav = self.params.cavitation;
+        l.pressure
+            .par_iter_mut()
+            .zip(l.set.x.par_iter())
+            .zip(l.free_surface.par_iter())
+            .zip(element.par_iter())
+            .with_min_len(CHUNK)
+            .for_each(|(((pr, &x), &free), &e)| {
+                if !free {
+                    let [a, b] = offset(e as usize, x);
+                    *pr = plane(&moments[e as usize], a, b).max(-cav);
+                }
+            });
+    }
+}
+
+/// Smallest variance of the points' offsets (in elements²) along a
+/// direction that gets a pressure slope: a spread of a tenth of an element.
+const SPREAD: f64 = 0.01;
+
+/// The weighted least-squares plane p = p̄ + s·(ξ − ξ̄) of the moments `m`
+/// (`ElementScratch::pressure_moments`) at offset (a, b). The slope solves
+/// the 2 × 2 covariance system along the principal directions whose spread
+/// (standard deviation) exceeds a tenth of an element; the others get none.
+fn plane(m: &[f64; 9], a: f64, b: f64) -> f64 {
+    let w = m[0];
+    let (ma, mb, mean) = (m[1] / w, m[2] / w, m[6] / w);
+    let (caa, cab, cbb) = (m[3] / w - ma * ma, m[4] / w - ma * mb, m[5] / w - mb * mb);
+    let (cap, cbp) = (m[7] / w - ma * mean, m[8] / w - mb * mean);
+    let (large, small) = {
+        let half_trace = 0.5 * (caa + cbb);
+        let root = (0.25 * (caa - cbb) * (caa - cbb) + cab * cab).sqrt();
+        (half_trace + root, half_trace - root)
+    };
+    let d = [a - ma, b - mb];
+    if small > SPREAD {
+        // Both directions spread: the full 2 × 2 solve (det = λ₁λ₂ > SPREAD²).
+        let det = caa * cbb - cab * cab;
+        let slope = [(cbb * cap - cab * cbp) / det, (caa * cbp - cab * cap) / det];
+        mean + slope[0] * d[0] + slope[1] * d[1]
+    } else if large > SPREAD {
+        // One direction: the eigenvector of λ₁, of its two forms
+        // (λ₁ − cbb, cab) and (cab, λ₁ − caa) the longer (λ₁ − λ₂ > 0 keeps
+        // one of them away from zero).
+        let (u, v) = ([large - cbb, cab], [cab, large - caa]);
+        let (nu, nv) = (u[0].hypot(u[1]), v[0].hypot(v[1]));
+        let e = if nu >= nv { [u[0] / nu, u[1] / nu] } else { [v[0] / nv, v[1] / nv] };
+        mean + (e[0] * cap + e[1] * cbp) / large * (e[0] * d[0] + e[1] * d[1])
+    } else {
+        mean
+    }
+}
+
 /// The velocity point `p` gives the node at `at`: its own, plus under APIC
 /// its carried gradient times the offset to the node.
 #[inline(always)]
@@ -1258,4 +1392,95 @@ fn point_velocity_at(set: &PointSet, p: usize, at: [f64; 2], apic: bool) -> [f64
     let (c, x) = (set.affine[p], set.x[p]);
     let d = [at[0] - x[0], at[1] - x[1]];
     [v[0] + c[0][0] * d[0] + c[0][1] * d[1], v[1] + c[1][0] * d[0] + c[1][1] * d[1]]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{plane, ElementScratch};
+
+    /// One element of area 1 with the given grain and water volumes.
+    fn element(grains: f64, water: f64) -> ElementScratch {
+        ElementScratch { grain_volume: vec![grains], liquid_volume: vec![water], ..Default::default() }
+    }
+
+    #[test]
+    fn the_filling_ratio_tells_a_drained_element_from_a_saturated_one() {
+        let f = |e: ElementScratch| e.filling_ratio(0, 1.0);
+        // 12 + 12 points at n = 0.4, as seeded; the same points dilated to
+        // n = 0.5 (their volumes overlap, the element's space is unchanged).
+        assert!((f(element(0.6, 0.4)) - 1.0).abs() < 1e-12);
+        // Drained: the skeleton stays, 6 of its 12 liquid points have left.
+        assert!((f(element(0.6, 0.2)) - 0.5).abs() < 1e-12);
+        // The lab column's spikes: 6 liquid and 10 solid points (0.40), and
+        // on the rough floor 10 and 5 (0.44), where one filled point took
+        // the element's void closure as compression (5.7 and 33 kPa).
+        assert!((f(element(10.0 * 0.05, 6.0 * 0.4 / 12.0)) - 0.4).abs() < 1e-12);
+        assert!((f(element(5.0 * 0.05, 10.0 * 0.4 / 12.0)) - 4.0 / 9.0).abs() < 1e-12);
+        // Free water, half an element of it; grains leaving no space.
+        assert!((f(element(0.0, 0.5)) - 0.5).abs() < 1e-12);
+        assert_eq!(f(element(1.0, 0.0)), f64::INFINITY);
+    }
+
+    /// Moments of `points` (offset, pressure, weight) as `reconstruct_pressure` sums them.
+    fn moments(points: &[([f64; 2], f64, f64)]) -> [f64; 9] {
+        let mut m = [0.0; 9];
+        for &([a, b], p, w) in points {
+            for (slot, v) in m.iter_mut().zip([1.0, a, b, a * a, a * b, b * b, p, a * p, b * p]) {
+                *slot += w * v;
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn the_plane_reproduces_a_linear_field_and_keeps_the_weighted_mean() {
+        let field = |a: f64, b: f64| 350.0 - 52.3 * b + 7.1 * a;
+        // The 4 × 3 sub-grid of a filled element, unequal weights.
+        let mut pts = Vec::new();
+        for i in 0..4 {
+            for k in 0..3 {
+                let (a, b) = (-0.375 + 0.25 * i as f64, -1.0 / 3.0 + k as f64 / 3.0);
+                pts.push(([a, b], field(a, b), 1.0 + 0.1 * (i * 3 + k) as f64));
+            }
+        }
+        let m = moments(&pts);
+        for &([a, b], p, _) in &pts {
+            assert!((plane(&m, a, b) - p).abs() < 1e-9, "{} vs {p}", plane(&m, a, b));
+        }
+        // One outlier: the weighted mean pressure (the element's Σ p V) is kept.
+        pts[5].1 += 4000.0;
+        let m = moments(&pts);
+        let kept: f64 = pts.iter().map(|&([a, b], _, w)| w * plane(&m, a, b)).sum();
+        assert!((kept - m[6]).abs() < 1e-9 * m[6], "{kept} vs {}", m[6]);
+        // A rotated sub-grid (cross-covariance ≠ 0) still reproduces a plane.
+        let rot = |[a, b]: [f64; 2]| [0.8 * a - 0.6 * b, 0.6 * a + 0.8 * b];
+        let pts: Vec<_> = pts.iter().map(|&(x, _, w)| (rot(x), field(rot(x)[0], rot(x)[1]), w)).collect();
+        let m = moments(&pts);
+        for &([a, b], p, _) in &pts {
+            assert!((plane(&m, a, b) - p).abs() < 1e-9);
+        }
+        // A 3 × 3 sub-grid (isotropic spread) and the hydrostatic field of a
+        // column at rest (no slope in a, the cross-moment round-off only).
+        let hydrostatic = |_: f64, b: f64| 372.78 - 39.24 * b;
+        for (nx, nz) in [(3, 3), (4, 3)] {
+            let pts: Vec<_> = (0..nx * nz)
+                .map(|k| {
+                    let (a, b) = (
+                        (k % nx) as f64 / nx as f64 - 0.5 + 0.5 / nx as f64,
+                        (k / nx) as f64 / nz as f64 - 0.5 + 0.5 / nz as f64,
+                    );
+                    ([a, b], hydrostatic(a, b), 1.3333e-6)
+                })
+                .collect();
+            let m = moments(&pts);
+            for &([a, b], p, _) in &pts {
+                assert!((plane(&m, a, b) - p).abs() < 1e-9, "{nx} x {nz}: {} vs {p}", plane(&m, a, b));
+            }
+        }
+        // A single row (no spread in b): its mean and x-slope only.
+        let row: Vec<_> =
+            (0..4).map(|i| ([-0.375 + 0.25 * i as f64, -0.4], field(-0.375 + 0.25 * i as f64, -0.4), 1.0)).collect();
+        let m = moments(&row);
+        assert!((plane(&m, 0.125, 0.3) - field(0.125, -0.4)).abs() < 1e-9);
+    }
 }

@@ -351,6 +351,15 @@ pub struct MpmSpec {
     /// the free surface and has zero pore pressure. Default 0.8.
     #[serde(default = "default_mpm_fill")]
     pub free_surface_fill: f64,
+    /// How the pore pressures of an element's liquid points are tied
+    /// together each step: `linear` (default), a volume-weighted
+    /// least-squares plane through the element's pressured points (free ones
+    /// stay at 0), so a pressure carried into an element keeps no excess
+    /// its increments can never remove (a single point held 4.4 kPa among
+    /// neighbours at 41 Pa), while a hydrostatic gradient is kept exactly;
+    /// or `none`, each point's own history (docs/mpm.md, "Pore pressure").
+    #[serde(default)]
+    pub pressure_reconstruction: MpmPressureReconstruction,
     /// Under `transfer = "flip"`: share of the grid (PIC) velocity blended
     /// into each point's FLIP update, per step. Pure FLIP (0) keeps
     /// point-velocity components the grid cannot see: next to the rough
@@ -541,6 +550,17 @@ pub enum MpmTransfer {
     /// Affine PIC: points take the grid velocity and its affine part.
     #[default]
     Apic,
+}
+
+/// How an element's liquid points' pore pressures are tied together.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MpmPressureReconstruction {
+    /// A least-squares plane per element, refitted every step.
+    #[default]
+    Linear,
+    /// Each point keeps its own pressure history.
+    None,
 }
 
 /// A note when FLIP-only keys differ from their defaults under APIC, where
