@@ -482,78 +482,96 @@ impl Mpm {
     /// Stencils, elements and bins of both point sets; the node range touched.
     fn locate(&mut self) {
         let grid = self.grid;
-        let nodes = grid.node_count();
-        let row = grid.node_dims()[0];
-        let mut rows = (usize::MAX, 0);
-        let mut columns = (usize::MAX, 0);
-        for (set, scratch) in
-            [(&self.state.solid.set, &mut self.solid_scratch), (&self.state.liquid.set, &mut self.liquid_scratch)]
-        {
-            let n = set.len();
-            scratch.stencil.resize(n, Stencil::default());
-            scratch.element.resize(n, 0);
-            scratch.order.resize(n, 0);
-            scratch.start.clear();
-            scratch.start.resize(nodes + 1, 0);
-            let constants = grid.shape_constants(set.half);
-            scratch
-                .stencil
-                .par_iter_mut()
-                .zip(scratch.element.par_iter_mut())
-                .zip(set.x.par_iter())
-                .with_min_len(CHUNK)
-                .for_each(|((st, el), &x)| {
-                    *st = grid.stencil(x, &constants);
-                    *el = grid.element_of(x) as u32;
-                });
-            // Stable counting sort by base node: bins hold points in index order.
-            for st in &scratch.stencil {
-                scratch.start[st.base as usize + 1] += 1;
-                let (c, r) = (st.base as usize % row, st.base as usize / row);
-                rows = (rows.0.min(r), rows.1.max(r));
-                columns = (columns.0.min(c), columns.1.max(c));
-            }
-            for b in 0..nodes {
-                scratch.start[b + 1] += scratch.start[b];
-            }
-            scratch.cursor.clear();
-            scratch.cursor.extend_from_slice(&scratch.start[..nodes]);
-            for (p, st) in scratch.stencil.iter().enumerate() {
-                let slot = &mut scratch.cursor[st.base as usize];
-                scratch.order[*slot as usize] = p as u32;
-                *slot += 1;
-            }
-        }
-        if rows.0 == usize::MAX {
-            rows = (0, 0);
-            columns = (0, 0);
-        }
+        let params = &self.params;
+        let (solid, liquid) = (&self.state.solid, &self.state.liquid.set);
+        let e = &mut self.elements;
+        let (liquid_points, liquid_volume) = (&mut e.liquid_points, &mut e.liquid_volume);
+        let (mass_solid, mass_fluidised) = (&mut e.solid_mass_solid, &mut e.solid_mass_fluidised);
+        let (grain_volume, solid_point_volume) = (&mut e.grain_volume, &mut e.solid_point_volume);
+        // The two sets share nothing here: one thread each for the serial
+        // counting sorts and element sums.
+        let (solid_span, liquid_span) = rayon::join(
+            || {
+                let span = Self::bin_points(&grid, &solid.set, &mut self.solid_scratch);
+                mass_solid.fill(0.0);
+                mass_fluidised.fill(0.0);
+                grain_volume.fill(0.0);
+                solid_point_volume.fill(0.0);
+                for (p, &el) in self.solid_scratch.element.iter().enumerate() {
+                    let (el, m) = (el as usize, solid.set.mass[p]);
+                    if solid.fluidised[p] {
+                        mass_fluidised[el] += m;
+                    } else {
+                        mass_solid[el] += m;
+                    }
+                    grain_volume[el] += m / params.solid_density;
+                    solid_point_volume[el] += solid.set.volume[p];
+                }
+                span
+            },
+            || {
+                let span = Self::bin_points(&grid, liquid, &mut self.liquid_scratch);
+                liquid_points.fill(0);
+                liquid_volume.fill(0.0);
+                for (p, &el) in self.liquid_scratch.element.iter().enumerate() {
+                    liquid_points[el as usize] += 1;
+                    liquid_volume[el as usize] += liquid.mass[p] / params.liquid_density;
+                }
+                span
+            },
+        );
         let [row_len, row_count] = grid.node_dims();
+        let (rows, columns) = match (solid_span, liquid_span) {
+            (Some((r0, c0)), Some((r1, c1))) => ((r0.0.min(r1.0), r0.1.max(r1.1)), (c0.0.min(c1.0), c0.1.max(c1.1))),
+            (Some(span), None) | (None, Some(span)) => span,
+            (None, None) => ((0, 0), (0, 0)),
+        };
         self.rows = (rows.0, (rows.1 + 2).min(row_count - 1));
         self.columns = (columns.0, (columns.1 + 2).min(row_len - 1));
+    }
 
-        let e = &mut self.elements;
-        e.liquid_points.fill(0);
-        e.solid_mass_solid.fill(0.0);
-        e.solid_mass_fluidised.fill(0.0);
-        e.grain_volume.fill(0.0);
-        e.solid_point_volume.fill(0.0);
-        e.liquid_volume.fill(0.0);
-        let liquid = &self.state.liquid.set;
-        for (p, &el) in self.liquid_scratch.element.iter().enumerate() {
-            e.liquid_points[el as usize] += 1;
-            e.liquid_volume[el as usize] += liquid.mass[p] / self.params.liquid_density;
+    /// Stencils and elements of one point set, and its points binned by
+    /// stencil base node (a stable counting sort: bins hold points in index
+    /// order). Returns the base nodes' (row, column) span, None when empty.
+    #[allow(clippy::type_complexity)]
+    fn bin_points(grid: &Grid, set: &PointSet, scratch: &mut PointScratch) -> Option<((usize, usize), (usize, usize))> {
+        let nodes = grid.node_count();
+        let row = grid.node_dims()[0];
+        let n = set.len();
+        scratch.stencil.resize(n, Stencil::default());
+        scratch.element.resize(n, 0);
+        scratch.order.resize(n, 0);
+        scratch.start.clear();
+        scratch.start.resize(nodes + 1, 0);
+        let constants = grid.shape_constants(set.half);
+        scratch
+            .stencil
+            .par_iter_mut()
+            .zip(scratch.element.par_iter_mut())
+            .zip(set.x.par_iter())
+            .with_min_len(CHUNK)
+            .for_each(|((st, el), &x)| {
+                *st = grid.stencil(x, &constants);
+                *el = grid.element_of(x) as u32;
+            });
+        let (mut rows, mut columns) = ((usize::MAX, 0), (usize::MAX, 0));
+        for st in &scratch.stencil {
+            scratch.start[st.base as usize + 1] += 1;
+            let (c, r) = (st.base as usize % row, st.base as usize / row);
+            rows = (rows.0.min(r), rows.1.max(r));
+            columns = (columns.0.min(c), columns.1.max(c));
         }
-        let solid = &self.state.solid;
-        for (p, &el) in self.solid_scratch.element.iter().enumerate() {
-            if solid.fluidised[p] {
-                e.solid_mass_fluidised[el as usize] += solid.set.mass[p];
-            } else {
-                e.solid_mass_solid[el as usize] += solid.set.mass[p];
-            }
-            e.grain_volume[el as usize] += solid.set.mass[p] / self.params.solid_density;
-            e.solid_point_volume[el as usize] += solid.set.volume[p];
+        for b in 0..nodes {
+            scratch.start[b + 1] += scratch.start[b];
         }
+        scratch.cursor.clear();
+        scratch.cursor.extend_from_slice(&scratch.start[..nodes]);
+        for (p, st) in scratch.stencil.iter().enumerate() {
+            let slot = &mut scratch.cursor[st.base as usize];
+            scratch.order[*slot as usize] = p as u32;
+            *slot += 1;
+        }
+        (n > 0).then_some((rows, columns))
     }
 
     // -- stage 2 ---------------------------------------------------------
@@ -629,31 +647,39 @@ impl Mpm {
         let tol = self.mass_tolerance;
         let (r0, r1) = self.rows;
         let (c0, c1) = self.columns;
-        for r in r0..=r1 {
-            for c in c0..=c1 {
-                let i = r * row + c;
-                let s = &self.sums[i];
-                let mask = self.mask[i];
-                let vs = if s.mass_s > tol {
-                    [mask[0] * s.momentum_s[0] / s.mass_s, mask[1] * s.momentum_s[1] / s.mass_s]
-                } else {
-                    [0.0; 2]
-                };
-                let vl = if s.mass_l > tol {
-                    [mask[0] * s.momentum_l[0] / s.mass_l, mask[1] * s.momentum_l[1] / s.mass_l]
-                } else {
-                    [0.0; 2]
-                };
-                self.velocity_s[i] = vs;
-                self.velocity_l[i] = vl;
-                self.relative[i] =
-                    if s.mass_s > tol && s.mass_l > tol { [vl[0] - vs[0], vl[1] - vs[1]] } else { [0.0; 2] };
-                let v = s.volume_s.max(s.volume_l);
-                self.solid_fraction[i] = if v > 0.0 { (s.solid_volume / v).min(MAX_SOLID_FRACTION) } else { 0.0 };
-                let full = self.full_volume[i];
-                self.fill[i] = if full > 0.0 { s.volume_l / full } else { 0.0 };
-            }
-        }
+        let rows = r0 * row..(r1 + 1) * row;
+        let (sums, mask, full_volume) = (&self.sums, &self.mask, &self.full_volume);
+        self.velocity_s[rows.clone()]
+            .par_chunks_mut(row)
+            .zip(self.velocity_l[rows.clone()].par_chunks_mut(row))
+            .zip(self.relative[rows.clone()].par_chunks_mut(row))
+            .zip(self.solid_fraction[rows.clone()].par_chunks_mut(row))
+            .zip(self.fill[rows].par_chunks_mut(row))
+            .enumerate()
+            .for_each(|(k, ((((velocity_s, velocity_l), relative), solid_fraction), fill))| {
+                for c in c0..=c1 {
+                    let i = (r0 + k) * row + c;
+                    let (s, m) = (&sums[i], mask[i]);
+                    let vs = if s.mass_s > tol {
+                        [m[0] * s.momentum_s[0] / s.mass_s, m[1] * s.momentum_s[1] / s.mass_s]
+                    } else {
+                        [0.0; 2]
+                    };
+                    let vl = if s.mass_l > tol {
+                        [m[0] * s.momentum_l[0] / s.mass_l, m[1] * s.momentum_l[1] / s.mass_l]
+                    } else {
+                        [0.0; 2]
+                    };
+                    velocity_s[c] = vs;
+                    velocity_l[c] = vl;
+                    relative[c] =
+                        if s.mass_s > tol && s.mass_l > tol { [vl[0] - vs[0], vl[1] - vs[1]] } else { [0.0; 2] };
+                    let v = s.volume_s.max(s.volume_l);
+                    solid_fraction[c] = if v > 0.0 { (s.solid_volume / v).min(MAX_SOLID_FRACTION) } else { 0.0 };
+                    let full = full_volume[i];
+                    fill[c] = if full > 0.0 { s.volume_l / full } else { 0.0 };
+                }
+            });
     }
 
     /// Element porosity and its gradient from the corner nodes at the centroid.
