@@ -5,7 +5,10 @@
 # FLIP + XPIC (the old default), on the rough floor and on mu = 10 and
 # mu = 0 floors,
 # with 3 and 6 points per element, on 2.86, 2 and 1.43 mm elements, and
-# with friction angles 30, 25, 20 degrees (the DEM's deposit is flatter). Prints one
+# with friction angles 30, 25, 20 degrees (the DEM's deposit is flatter),
+# and (saturated) with the DEM-LBM's bed permeability (Ergun A = 123) or
+# twice Ergun's (75), dilatancy 5 and 10 degrees, and without the
+# pore-pressure plane. Prints one
 # line per run: solid runout (0.5 % mass front), front at 1/2/4 t_ref, the
 # pile edge (first deposit column below one grain, the DEM's rule), the
 # liquid front at the end, status, t/t_ref, wall time.
@@ -48,11 +51,15 @@ declare -A sets=(
   [sat_h2_phi25]="--set mpm.element_size=0.002 --set mpm.friction_angle=25"
   [dry_h2_beta05]="--set mpm.element_size=0.002 --set mpm.flip_share=0.5"
   [sat_h2_beta05]="--set mpm.element_size=0.002 --set mpm.flip_share=0.5"
+  [sat_k123]="--set mpm.ergun_a=123" [sat_k75]="--set mpm.ergun_a=75"
+  [sat_psi5]="--set mpm.dilatancy_angle=5" [sat_psi10]="--set mpm.dilatancy_angle=10"
+  [sat_none]="--set mpm.pressure_reconstruction=\"none\"" [sat_rough_none]="--set mpm.floor=\"rough\" --set mpm.pressure_reconstruction=\"none\""
 )
 order="dry dry_beta05 dry_c025 dry_flip08 dry_rough dry_mu10 dry_mu0 dry_ppe6 dry_ppe3 dry_h286 dry_h2 dry_h143 dry_h2_beta05
        dry_phi30 dry_phi25 dry_phi20 dry_beta075 dry_beta09 dry_beta097 dry_beta099
        dry_flip05 dry_flip05_pic01 dry_flip05_pic03 dry_h2_phi25
-       sat sat_beta05 sat_c025 sat_flip08 sat_rough sat_ppe6 sat_ppe3 sat_h286 sat_h2 sat_h143 sat_h2_beta05 sat_phi30 sat_phi25 sat_nmax08 sat_h2_phi25"
+       sat sat_beta05 sat_c025 sat_flip08 sat_rough sat_ppe6 sat_ppe3 sat_h286 sat_h2 sat_h143 sat_h2_beta05 sat_phi30 sat_phi25 sat_nmax08 sat_h2_phi25
+       sat_k123 sat_k75 sat_psi5 sat_psi10 sat_none sat_rough_none"
 cases=${2:-$order}
 mkdir -p "$out"
 for c in $cases; do
