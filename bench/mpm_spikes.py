@@ -9,8 +9,8 @@ largest pressure that statics (the column's full height of water) and the
 stagnation of the local flow can explain. The script reports, per frame,
 the largest pressure, its ratio to that bar, where it sits, and the fill
 of its element (points counted free / all liquid points there); and, as
-a second measure, the worst element: the mean pressure over all its
-liquid points (free ones at 0), the pressure its points exert on the
+a second measure, the worst element: the volume-weighted mean pressure
+over all its liquid points (free ones at 0), the pressure its points exert on the
 nodes together, against the same bar. A lone pressured point among free
 ones carries its element's load alone and shows large at the first
 measure only.
@@ -57,7 +57,7 @@ for k, (time, cloud) in enumerate(frames):
     for c, idx in cells.items():
         v = max(vmax.get((c[0] + a, c[1] + b), 0.0) for a in (-1, 0, 1) for b in (-1, 0, 1))
         bar = 3.0 * (static + 0.5 * rho_l * v * v)
-        mean = sum(pts[i][4] for i in idx) / len(idx)
+        mean = sum(pts[i][4] * pts[i][6] for i in idx) / sum(pts[i][6] for i in idx)
         if mean / bar > worst_element[0]:
             worst_element = (mean / bar, (time * 1e-9, c, mean, bar))
         for i in idx:
@@ -79,8 +79,8 @@ for k, (time, cloud) in enumerate(frames):
 print(f"{run}: rho_L g H0 = {static:.0f} Pa, t_ref = {t_ref:.4f} s, element {h*1e3:g} mm")
 print("| t/t_ref | max p (Pa) | worst p/bar | at x, z (mm) | its p, bar (Pa) | element: free/all |")
 print("|---|---|---|---|---|---|")
-for t, pmax, r, x, z, p, bar, free, alln in rows:
-    if r > 0.5 or rows.index((t, pmax, r, x, z, p, bar, free, alln)) % 10 == 0:
+for k, (t, pmax, r, x, z, p, bar, free, alln) in enumerate(rows):
+    if r > 0.5 or k % 10 == 0:
         print(f"| {t/t_ref:.2f} | {pmax:.0f} | {r:.2f} | {x*1e3:.1f}, {z*1e3:.1f} | {p:.0f}, {bar:.0f} | {free}/{alln} |")
 if worst:
     t, pmax, r, x, z, p, bar, free, alln = worst

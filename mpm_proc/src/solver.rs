@@ -41,7 +41,9 @@ pub struct Params {
     /// Coulomb friction μ of the solid on the walls listed in
     /// `Fixities::contact` (0: they hold only the normal velocity).
     pub wall_friction: f64,
-    /// Filling ratio below which a liquid point is on the free surface.
+    /// Filling ratio below which a liquid point is on the free surface: its
+    /// own (interpolated from the nodes) or its element's
+    /// (`ElementScratch::filling_ratio`).
     pub free_surface_fill: f64,
     /// PIC share α of the point velocity update: v ← (1 − α) v_FLIP + α v_PIC.
     pub pic_fraction: f64,

@@ -347,8 +347,10 @@ pub struct MpmSpec {
     /// Keep the quadratic (Forchheimer) drag term f2 of Eq. 7. Default true.
     #[serde(default = "default_true")]
     pub quadratic_drag: bool,
-    /// A liquid point whose interpolated filling ratio is below this is on
-    /// the free surface and has zero pore pressure. Default 0.8.
+    /// A liquid point is on the free surface, with zero pore pressure, when
+    /// its interpolated (nodal) filling ratio is below this, or its
+    /// element's: the water over the space the element's grains leave
+    /// (docs/mpm.md, "Pore pressure"). Default 0.8.
     #[serde(default = "default_mpm_fill")]
     pub free_surface_fill: f64,
     /// How the pore pressures of an element's liquid points are tied
