@@ -378,7 +378,7 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
     if let Some(unused) = schemas::scene::unused_flip_keys(&m) {
         warnings.push(unused);
     }
-    if m.transfer == MpmTransfer::Apic && m.courant > 0.7 {
+    if m.transfer.is_affine() && m.courant > 0.7 {
         warnings.push(format!(
             "mpm.courant = {} under APIC: an elastic block held at 0.75 and blew up at 0.8 (docs/mpm.md, \"Time step\"); soil that yields may survive it, stiff or cohesive parts may not; use 0.7 or less",
             m.courant
@@ -412,9 +412,10 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
         m.top_load
     );
     match m.transfer {
-        MpmTransfer::Apic if m.flip_share > 0.0 => println!(
-            "transfer     APIC (affine part B D^-1 per point) with {} of the FLIP update blended in, MUSL; pic_fraction and xpic_order unused",
-            m.flip_share
+        MpmTransfer::Aflip => println!(
+            "transfer     AFLIP: APIC (affine part B D^-1 per point) with {} of the FLIP update blended in for the solid, {} for the liquid, MUSL; pic_fraction and xpic_order unused",
+            m.flip_share_in_effect(),
+            m.liquid_flip_share_in_effect()
         ),
         MpmTransfer::Apic => {
             println!("transfer     APIC (affine part B D^-1 per point, no filter), MUSL; pic_fraction and xpic_order unused")

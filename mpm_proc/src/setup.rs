@@ -73,9 +73,9 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         free_surface_fill: spec.free_surface_fill,
         pic_fraction: spec.pic_fraction,
         xpic_order: spec.xpic_order,
-        apic: spec.transfer == schemas::scene::MpmTransfer::Apic,
+        apic: spec.transfer.is_affine(),
         linear_pressure: spec.pressure_reconstruction == schemas::scene::MpmPressureReconstruction::Linear,
-        flip_share: spec.flip_share,
+        flip_share: [spec.flip_share_in_effect(), spec.liquid_flip_share_in_effect()],
         soil: MohrCoulomb::new(
             spec.young_modulus,
             spec.poisson_ratio,
@@ -202,7 +202,11 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         elements[1],
         spec.shape_functions,
         match spec.transfer {
-            schemas::scene::MpmTransfer::Apic if spec.flip_share > 0.0 => format!("APIC + {} FLIP", spec.flip_share),
+            schemas::scene::MpmTransfer::Aflip => format!(
+                "AFLIP, FLIP share {} solid, {} liquid",
+                spec.flip_share_in_effect(),
+                spec.liquid_flip_share_in_effect()
+            ),
             schemas::scene::MpmTransfer::Apic => "APIC".to_string(),
             schemas::scene::MpmTransfer::Flip => format!("FLIP, PIC share {} (order {})", spec.pic_fraction, spec.xpic_order),
         },

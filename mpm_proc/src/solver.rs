@@ -57,8 +57,10 @@ pub struct Params {
     /// filter is needed and `pic_fraction` is not used. false: FLIP.
     pub apic: bool,
     /// Under APIC, the share β of the FLIP update blended in away from held
-    /// nodes: v ← (1 − β) v_APIC + β v_FLIP (`mpm.flip_share`).
-    pub flip_share: f64,
+    /// nodes, v ← (1 − β) v_APIC + β v_FLIP, for the solid and the liquid
+    /// points (`mpm.flip_share`, `mpm.liquid_flip_share`; AFLIP, Fei et al.
+    /// 2021).
+    pub flip_share: [f64; 2],
     /// Refit each element's pore pressures to a least-squares plane every
     /// step (`mpm.pressure_reconstruction = "linear"`).
     pub linear_pressure: bool,
@@ -217,8 +219,11 @@ struct ElementScratch {
     liquid_volume: Vec<f64>,
     /// Volume-weighted moments of the pressured liquid points about the
     /// element's centre, offsets in elements: Σw, Σwξ, Σwζ, Σwξ², Σwξζ,
-    /// Σwζ², Σwp, Σwξp, Σwζp.
-    pressure_moments: Vec<[f64; 9]>,
+    /// Σwζ², Σwp, Σwξp, Σwζp, and the number of points.
+    pressure_moments: Vec<[f64; 10]>,
+    /// The lowest fitted plane pressure among the element's pressured
+    /// points, before the slope limiter.
+    pressure_low: Vec<f64>,
     /// Δε_w of the pressure update.
     volumetric_strain: Vec<f64>,
 }
@@ -377,7 +382,8 @@ impl Mpm {
                 grain_volume: vec![0.0; ne],
                 solid_point_volume: vec![0.0; ne],
                 liquid_volume: vec![0.0; ne],
-                pressure_moments: vec![[0.0; 9]; ne],
+                pressure_moments: vec![[0.0; 10]; ne],
+                pressure_low: vec![0.0; ne],
                 volumetric_strain: vec![0.0; ne],
             },
             sums: vec![NodeSums::default(); nodes],
@@ -1075,9 +1081,10 @@ impl Mpm {
         let dt = self.params.dt;
         let (accel, mask, contact) = (&self.accel, &self.mask, &self.fixities.contact);
         let (vs, vl) = (&self.velocity_s, &self.velocity_l);
-        let (grid, beta) = (&self.grid, self.params.flip_share);
-        let blend = beta > 0.0;
+        let (grid, shares) = (&self.grid, self.params.flip_share);
         let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
+            let beta = shares[phase];
+            let blend = beta > 0.0;
             let velocity = if phase == 0 { vs } else { vl };
             set.affine.resize(set.v.len(), [[0.0; 2]; 2]);
             set.v
@@ -1326,10 +1333,18 @@ impl Mpm {
     /// their pressures: the mean pressure × volume of the element is kept,
     /// a linear field (hydrostatic) is reproduced exactly, and the
     /// sub-element outliers are gone. A direction along which the points
-    /// spread less than a tenth of an element (a single row) gets no slope.
-    /// As the moving-least-squares density filters of SPH (Colagrossi &
-    /// Landrini 2003), here with the element as the kernel.
-    /// Post: p ≥ −T_cav at every point; free-surface points keep p = 0.
+    /// spread less than a tenth of an element (a single row) gets no slope,
+    /// and an element of three or fewer pressured points (which a plane
+    /// would fit exactly, smoothing nothing) gets its mean. Where the plane
+    /// would dip below the tension cap −T_cav at one of the points, its
+    /// slope is scaled down until it does not (a slope limiter, as
+    /// Barth & Jespersen 1989 limit a reconstructed gradient to the
+    /// neighbours' bounds): clamping those points instead would add
+    /// pressure the element did not have. As the moving-least-squares
+    /// density filters of SPH (Colagrossi & Landrini 2003), here with the
+    /// element as the kernel.
+    /// Post: Σ p V over each element's pressured points unchanged (to
+    /// round-off); p ≥ −T_cav at every point; free-surface points keep p = 0.
     fn reconstruct_pressure(&mut self) {
         if !self.params.linear_pressure {
             return;
@@ -1342,8 +1357,8 @@ impl Mpm {
         };
         let l = &mut self.state.liquid;
         let element = &self.liquid_scratch.element;
-        let moments = &mut self.elements.pressure_moments;
-        moments.fill([0.0; 9]);
+        let (moments, low) = (&mut self.elements.pressure_moments, &mut self.elements.pressure_low);
+        moments.fill([0.0; 10]);
         for p in 0..l.set.len() {
             if l.free_surface[p] {
                 continue;
@@ -1355,8 +1370,9 @@ impl Mpm {
             for (slot, value) in m.iter_mut().zip([1.0, a, b, a * a, a * b, b * b, pr, a * pr, b * pr]) {
                 *slot += w * value;
             }
+            m[9] += 1.0;
         }
-        let cav = self.params.cavitation;
+        let moments = &*moments;
         l.pressure
             .par_iter_mut()
             .zip(l.set.x.par_iter())
@@ -1366,9 +1382,27 @@ impl Mpm {
             .for_each(|(((pr, &x), &free), &e)| {
                 if !free {
                     let [a, b] = offset(e as usize, x);
-                    *pr = plane(&moments[e as usize], a, b).max(-cav);
+                    *pr = plane(&moments[e as usize], a, b);
                 }
             });
+        low.fill(f64::INFINITY);
+        for p in 0..l.set.len() {
+            if !l.free_surface[p] {
+                let e = element[p] as usize;
+                low[e] = low[e].min(l.pressure[p]);
+            }
+        }
+        let (low, cav) = (&*low, self.params.cavitation);
+        l.pressure.par_iter_mut().zip(l.free_surface.par_iter()).zip(element.par_iter()).with_min_len(CHUNK).for_each(
+            |((pr, &free), &e)| {
+                if !free {
+                    let m = &moments[e as usize];
+                    let mean = m[6] / m[0];
+                    // max: round-off only, the limited plane's least value is −T_cav.
+                    *pr = (mean + slope_limiter(mean, low[e as usize], cav) * (*pr - mean)).max(-cav);
+                }
+            },
+        );
     }
 }
 
@@ -1380,9 +1414,13 @@ const SPREAD: f64 = 0.01;
 /// (`ElementScratch::pressure_moments`) at offset (a, b). The slope solves
 /// the 2 × 2 covariance system along the principal directions whose spread
 /// (standard deviation) exceeds a tenth of an element; the others get none.
-fn plane(m: &[f64; 9], a: f64, b: f64) -> f64 {
+/// Three or fewer points: the mean.
+fn plane(m: &[f64; 10], a: f64, b: f64) -> f64 {
     let w = m[0];
     let (ma, mb, mean) = (m[1] / w, m[2] / w, m[6] / w);
+    if m[9] <= 3.0 {
+        return mean;
+    }
     let (caa, cab, cbb) = (m[3] / w - ma * ma, m[4] / w - ma * mb, m[5] / w - mb * mb);
     let (cap, cbp) = (m[7] / w - ma * mean, m[8] / w - mb * mean);
     let (large, small) = {
@@ -1409,6 +1447,18 @@ fn plane(m: &[f64; 9], a: f64, b: f64) -> f64 {
     }
 }
 
+/// The share φ ∈ [0, 1] of a plane's slope kept so that its lowest value
+/// at the points, `low`, scaled about the mean, stays at or above −`cav`:
+/// φ = (p̄ + T) / (p̄ − low) where the plane dips below −T. The mean is
+/// never below −T (every pressure the plane is fitted to is capped there).
+fn slope_limiter(mean: f64, low: f64, cav: f64) -> f64 {
+    if low >= -cav || mean <= low {
+        1.0
+    } else {
+        ((mean + cav) / (mean - low)).clamp(0.0, 1.0)
+    }
+}
+
 /// The velocity point `p` gives the node at `at`: its own, plus under APIC
 /// its carried gradient times the offset to the node.
 #[inline(always)]
@@ -1424,7 +1474,7 @@ fn point_velocity_at(set: &PointSet, p: usize, at: [f64; 2], apic: bool) -> [f64
 
 #[cfg(test)]
 mod tests {
-    use super::{plane, ElementScratch};
+    use super::{plane, slope_limiter, ElementScratch};
 
     /// One element of area 1 with the given grain and water volumes.
     fn element(grains: f64, water: f64) -> ElementScratch {
@@ -1450,12 +1500,13 @@ mod tests {
     }
 
     /// Moments of `points` (offset, pressure, weight) as `reconstruct_pressure` sums them.
-    fn moments(points: &[([f64; 2], f64, f64)]) -> [f64; 9] {
-        let mut m = [0.0; 9];
+    fn moments(points: &[([f64; 2], f64, f64)]) -> [f64; 10] {
+        let mut m = [0.0; 10];
         for &([a, b], p, w) in points {
             for (slot, v) in m.iter_mut().zip([1.0, a, b, a * a, a * b, b * b, p, a * p, b * p]) {
                 *slot += w * v;
             }
+            m[9] += 1.0;
         }
         m
     }
@@ -1510,5 +1561,58 @@ mod tests {
             (0..4).map(|i| ([-0.375 + 0.25 * i as f64, -0.4], field(-0.375 + 0.25 * i as f64, -0.4), 1.0)).collect();
         let m = moments(&row);
         assert!((plane(&m, 0.125, 0.3) - field(0.125, -0.4)).abs() < 1e-9);
+        // A single diagonal row: the slope along it reproduces the field on
+        // the line, none across it (the points cannot tell it).
+        let along = |t: f64| [t * 0.6, t * 0.8];
+        let diag: Vec<_> = (0..5)
+            .map(|i| {
+                let [a, b] = along(-0.4 + 0.2 * i as f64);
+                ([a, b], field(a, b), 1.0)
+            })
+            .collect();
+        let m = moments(&diag);
+        for t in [-0.5, 0.1, 0.45] {
+            let [a, b] = along(t);
+            let across = [a - 0.3 * 0.8, b + 0.3 * 0.6];
+            assert!((plane(&m, a, b) - field(a, b)).abs() < 1e-9, "along t = {t}");
+            assert!((plane(&m, across[0], across[1]) - field(a, b)).abs() < 1e-9, "across t = {t}");
+        }
+        // Three points (a plane would fit them exactly): their mean.
+        let m = moments(&pts_of(&[([-0.3, -0.3], 100.0), ([0.3, -0.3], 400.0), ([0.0, 0.3], 700.0)]));
+        assert!((plane(&m, 0.3, -0.3) - 400.0).abs() < 1e-9);
+    }
+
+    fn pts_of(points: &[([f64; 2], f64)]) -> Vec<([f64; 2], f64, f64)> {
+        points.iter().map(|&(x, p)| (x, p, 1.0)).collect()
+    }
+
+    /// A lone excess in one corner: the plane through it dips below zero at
+    /// the opposite corner. The limited slope keeps the element's Σ p V and
+    /// puts the least pressure exactly at −T (T = 0 and 1 kPa).
+    #[test]
+    fn the_slope_limiter_keeps_the_element_load_and_the_tension_cap() {
+        let mut pts = Vec::new();
+        for i in 0..4 {
+            for k in 0..3 {
+                let (a, b) = (-0.375 + 0.25 * i as f64, -1.0 / 3.0 + k as f64 / 3.0);
+                pts.push(([a, b], if i == 3 && k == 2 { 4400.0 } else { 40.0 }, 1.0 + 0.05 * k as f64));
+            }
+        }
+        let m = moments(&pts);
+        let mean = m[6] / m[0];
+        let fitted: Vec<f64> = pts.iter().map(|&([a, b], _, _)| plane(&m, a, b)).collect();
+        let low = fitted.iter().cloned().fold(f64::INFINITY, f64::min);
+        assert!(low < -100.0, "the case must need the limiter: least fitted {low}");
+        for cav in [0.0, 1000.0] {
+            let phi = slope_limiter(mean, low, cav);
+            let limited: Vec<f64> = fitted.iter().map(|&q| mean + phi * (q - mean)).collect();
+            let least = limited.iter().cloned().fold(f64::INFINITY, f64::min);
+            let load: f64 = limited.iter().zip(&pts).map(|(p, &(_, _, w))| p * w).sum();
+            let expected_least = if low < -cav { -cav } else { low };
+            assert!((least - expected_least).abs() < 1e-9, "T = {cav}: least {least}");
+            assert!((load - m[6]).abs() < 1e-12 * m[6], "T = {cav}: load {load} vs {}", m[6]);
+        }
+        // A plane that stays above −T is left alone.
+        assert_eq!(slope_limiter(500.0, 20.0, 0.0), 1.0);
     }
 }

@@ -379,23 +379,40 @@ pub struct MpmSpec {
     /// same share, pure FLIP 2.20). Default 2.
     #[serde(default = "default_xpic_order")]
     pub xpic_order: u32,
-    /// Point–grid transfer: `apic` (default; affine PIC, Jiang et al.
-    /// 2015, the affine part C = B D⁻¹ carried per point: no
-    /// grid-invisible velocities, so no filter; `pic_fraction` and
-    /// `xpic_order` unused) or `flip` (FLIP with the share above). On the
-    /// DEM's frictional floor FLIP + XPIC runs the lab columns out 2.3–3.0×
-    /// further and does not hold as the rough floor when the floor's
-    /// friction is far above the soil's (docs/mpm.md, "Which transfer").
+    /// Point–grid transfer: `aflip` (default; affine PIC with a share
+    /// `flip_share` of the FLIP update blended in, the AFLIP of Fei et al.
+    /// 2021: no grid-invisible velocities, so no filter, and little of
+    /// APIC's own dissipation), `apic` (affine PIC alone, Jiang et al.
+    /// 2015, the affine part C = B D⁻¹ carried per point) or `flip` (FLIP
+    /// with the share `pic_fraction`). `pic_fraction` and `xpic_order` are
+    /// unused but under `flip`. Why AFLIP: the lab columns' runout under
+    /// APIC moved by 10–12 % when its dissipation was halved, under AFLIP
+    /// by 0.3–2 %; FLIP + XPIC runs them out 2.3–3.0× further on the DEM's
+    /// frictional floor and does not hold as the rough floor when the
+    /// floor's friction is far above the soil's (docs/mpm.md, "Which
+    /// transfer").
     #[serde(default)]
     pub transfer: MpmTransfer,
-    /// Under `transfer = "apic"`: share β of the FLIP update blended into
-    /// APIC's, v_p ← (1 − β) v_APIC + β v_FLIP, away from held nodes. APIC
-    /// drops the part of the point velocities the grid cannot see each step
-    /// (its numerical dissipation); β keeps that share of it for one more
-    /// step, so β = 0.5 roughly halves the dissipation. For sensitivity
-    /// studies; 0 (default) is plain APIC. Must stay 0 under `flip`.
-    #[serde(default)]
-    pub flip_share: f64,
+    /// Under `transfer = "aflip"` (unused, with a note, otherwise): share β
+    /// of the FLIP update blended into APIC's for the solid points,
+    /// v_p ← (1 − β) v_APIC + β v_FLIP, away from held nodes (points next to
+    /// them, or to a frictional wall, take APIC's). APIC drops the part of
+    /// the point velocities the grid cannot see each step (its numerical
+    /// dissipation); β keeps that share of it for one more step, so the
+    /// dissipation scales with 1 − β: 0.95 halves the default's, 0.8
+    /// doubles it. Default 0.9 (`DEFAULT_FLIP_SHARE`), in [0, 1) (1 would
+    /// be FLIP without a filter).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub flip_share: Option<f64>,
+    /// Under `transfer = "aflip"`: the same share for the liquid points.
+    /// Default 0: the pore water stays on APIC. With K_L = 2e7 Pa a
+    /// velocity the grid cannot see of 1 cm/s is ρ_L c Δv = 1.4 kPa of
+    /// pore pressure; at 0.9 (0.95) for both phases the saturated lab
+    /// column's worst liquid point reached 1.10× (1.19×) the spike bar,
+    /// against 0.47× with the water on APIC, and the solid's runout moved
+    /// by 3 % (docs/mpm.md, "Which transfer"). In [0, 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub liquid_flip_share: Option<f64>,
     /// `k0` (default): effective stresses σ'_h = K0 σ'_v with K0 = ν/(1−ν)
     /// and hydrostatic pore pressure, then the gravity phase; `zero`:
     /// stress-free start (gravity applied suddenly at t = 0, no gravity phase).
@@ -424,6 +441,24 @@ impl Default for MpmSpec {
 }
 
 impl MpmSpec {
+    /// The FLIP share β in effect: `flip_share` (default 0.9) under `aflip`,
+    /// 0 otherwise.
+    pub fn flip_share_in_effect(&self) -> f64 {
+        match self.transfer {
+            MpmTransfer::Aflip => self.flip_share.unwrap_or(DEFAULT_FLIP_SHARE),
+            _ => 0.0,
+        }
+    }
+
+    /// The liquid points' FLIP share in effect: `liquid_flip_share`
+    /// (default 0) under `aflip`, 0 otherwise.
+    pub fn liquid_flip_share_in_effect(&self) -> f64 {
+        match self.transfer {
+            MpmTransfer::Aflip => self.liquid_flip_share.unwrap_or(0.0),
+            _ => 0.0,
+        }
+    }
+
     /// The sub-grid of the material points of one phase in an initially
     /// filled element: (a along x, b along z) with a·b =
     /// `points_per_element`, a ≥ b and a − b as small as possible (12 →
@@ -550,9 +585,23 @@ pub enum MpmTransfer {
     /// FLIP with a PIC/XPIC share (`pic_fraction`, `xpic_order`).
     Flip,
     /// Affine PIC: points take the grid velocity and its affine part.
-    #[default]
     Apic,
+    /// Affine PIC with a share `flip_share` of the FLIP update (Fei et al. 2021).
+    #[default]
+    Aflip,
 }
+
+impl MpmTransfer {
+    /// Whether points carry an affine velocity part (APIC and AFLIP).
+    pub fn is_affine(self) -> bool {
+        self != MpmTransfer::Flip
+    }
+}
+
+/// The FLIP share of the default `aflip` transfer (`MpmSpec::flip_share`):
+/// the lab columns' runouts move by 0.3 % (dry) and 2.2 % (saturated) when
+/// it is raised to 0.95 (APIC's dissipation halved), docs/mpm.md "Which transfer".
+pub const DEFAULT_FLIP_SHARE: f64 = 0.9;
 
 /// How an element's liquid points' pore pressures are tied together.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -565,16 +614,32 @@ pub enum MpmPressureReconstruction {
     None,
 }
 
-/// A note when FLIP-only keys differ from their defaults under APIC, where
-/// they are unused (a scene written for FLIP now runs APIC without them).
+/// A note when keys of another transfer are set but unused: the FLIP-only
+/// `pic_fraction` and `xpic_order` (differing from their defaults) under
+/// APIC or AFLIP, and the AFLIP-only `flip_share` under APIC or FLIP (a
+/// scene written for one transfer, run with `--set mpm.transfer=...`).
 pub fn unused_flip_keys(m: &MpmSpec) -> Option<String> {
+    let name = match m.transfer {
+        MpmTransfer::Flip => "flip",
+        MpmTransfer::Apic => "apic",
+        MpmTransfer::Aflip => "aflip",
+    };
     let changed = m.pic_fraction != default_mpm_pic() || m.xpic_order != default_xpic_order();
-    (m.transfer == MpmTransfer::Apic && changed).then(|| {
-        format!(
-            "mpm.pic_fraction = {} and mpm.xpic_order = {} are unused under mpm.transfer = \"apic\" (no filter); set mpm.transfer = \"flip\" to use them, or remove them",
+    let mut notes = Vec::new();
+    if m.transfer.is_affine() && changed {
+        notes.push(format!(
+            "mpm.pic_fraction = {} and mpm.xpic_order = {} are unused under mpm.transfer = \"{name}\" (no filter); set mpm.transfer = \"flip\" to use them, or remove them",
             m.pic_fraction, m.xpic_order
-        )
-    })
+        ));
+    }
+    for (key, set) in [("flip_share", m.flip_share), ("liquid_flip_share", m.liquid_flip_share)] {
+        if let (Some(share), MpmTransfer::Apic | MpmTransfer::Flip) = (set, m.transfer) {
+            notes.push(format!(
+                "mpm.{key} = {share} is unused under mpm.transfer = \"{name}\" (it blends FLIP into APIC under \"aflip\"; under \"flip\" the PIC share is mpm.pic_fraction)"
+            ));
+        }
+    }
+    (!notes.is_empty()).then(|| notes.join("; "))
 }
 
 /// How the MPM soil's stresses start.
@@ -1393,7 +1458,7 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
     v.positive("mpm.ergun_b", m.ergun_b);
     v.half_open("mpm.free_surface_fill", m.free_surface_fill, 0.0, 1.0);
     v.in_range("mpm.pic_fraction", m.pic_fraction, 0.0, 1.0);
-    if m.transfer == MpmTransfer::Apic && m.shape_functions == ShapeFunctions::Linear {
+    if m.transfer.is_affine() && m.shape_functions == ShapeFunctions::Linear {
         // Measured: a block sliding on a frictional floor blew up once its
         // points crossed a grid line (the bilinear gradient jumps there and
         // APIC carries it); the GIMP weights and gradients are continuous.
@@ -1402,16 +1467,12 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
             "APIC with shape_functions = \"linear\" is unstable when points cross grid lines; use shape_functions = \"gimp\" or transfer = \"flip\"".to_string(),
         );
     }
-    if m.flip_share != 0.0 && m.transfer != MpmTransfer::Apic {
-        v.fail(
-            "mpm.flip_share",
-            format!(
-                "= {} blends FLIP into APIC and needs mpm.transfer = \"apic\"; under \"flip\" the PIC share is mpm.pic_fraction",
-                m.flip_share
-            ),
-        );
-    } else if !(0.0..1.0).contains(&m.flip_share) {
-        v.fail("mpm.flip_share", format!("must be in [0, 1) (1 would be FLIP without a filter), got {}", m.flip_share));
+    for (key, set) in [("mpm.flip_share", m.flip_share), ("mpm.liquid_flip_share", m.liquid_flip_share)] {
+        if let Some(share) = set {
+            if !(0.0..1.0).contains(&share) {
+                v.fail(key, format!("must be in [0, 1) (1 would be FLIP without a filter), got {share}"));
+            }
+        }
     }
     if !(1..=2).contains(&m.xpic_order) {
         v.fail("mpm.xpic_order", format!("must be 1 (PIC) or 2 (XPIC(2)), got {}", m.xpic_order));

@@ -235,10 +235,26 @@ fn valid_mpm_scene_loads_without_dem_or_lbm() {
     let m = s.mpm();
     assert_eq!((m.element_size, m.points_per_element, m.point_grid()), (0.004, 12, (4, 3)));
     assert_eq!((s.mpm_grid().nx, s.mpm_grid().nz), (175, 30));
-    assert_eq!((m.transfer, m.flip_share), (schemas::scene::MpmTransfer::Apic, 0.0));
-    // FLIP blended into APIC is an APIC setting; under FLIP the share is pic_fraction.
-    let e = load(MPM, &["mpm.transfer=\"flip\"", "mpm.flip_share=0.5"]).unwrap_err();
-    assert!(e.names_key("mpm.flip_share") && e.to_string().contains("mpm.pic_fraction"), "{e}");
+    assert_eq!((m.transfer, m.flip_share_in_effect()), (schemas::scene::MpmTransfer::Aflip, 0.9));
+    // FLIP blended into APIC is an AFLIP setting; under APIC and FLIP a
+    // scene's flip_share is unused, and said so (under FLIP the share is
+    // pic_fraction).
+    for transfer in ["apic", "flip"] {
+        let m = load(MPM, &[&format!("mpm.transfer=\"{transfer}\""), "mpm.flip_share=0.5"]).unwrap().mpm();
+        assert_eq!(m.flip_share_in_effect(), 0.0);
+        let note = schemas::scene::unused_flip_keys(&m).expect("a note");
+        assert!(note.contains("mpm.flip_share = 0.5 is unused") && note.contains("aflip"), "{note}");
+    }
+    assert!(schemas::scene::unused_flip_keys(&load(MPM, &["mpm.flip_share=0.5"]).unwrap().mpm()).is_none());
+    let apic = load(MPM, &["mpm.transfer=\"apic\""]).unwrap().mpm();
+    assert_eq!(apic.flip_share_in_effect(), 0.0);
+    assert_eq!(load(MPM, &["mpm.flip_share=0.95"]).unwrap().mpm().flip_share_in_effect(), 0.95);
+    assert!(load(MPM, &["mpm.flip_share=1.0"]).unwrap_err().names_key("mpm.flip_share"));
+    // The pore water stays on APIC unless asked.
+    assert_eq!(m.liquid_flip_share_in_effect(), 0.0);
+    let both = load(MPM, &["mpm.liquid_flip_share=0.9"]).unwrap().mpm();
+    assert_eq!((both.flip_share_in_effect(), both.liquid_flip_share_in_effect()), (0.9, 0.9));
+    assert!(load(MPM, &["mpm.liquid_flip_share=1.0"]).unwrap_err().names_key("mpm.liquid_flip_share"));
     // The resolved scene keeps the method and reloads.
     let again = load(&s.to_toml(), &[]).unwrap();
     assert_eq!(again.method(), Method::Mpm);
