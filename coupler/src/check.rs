@@ -380,7 +380,7 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
     }
     if m.transfer.is_affine() && m.courant > 0.7 {
         warnings.push(format!(
-            "mpm.courant = {} under APIC: an elastic block held at 0.75 and blew up at 0.8 (docs/mpm.md, \"Time step\"); soil that yields may survive it, stiff or cohesive parts may not; use 0.7 or less",
+            "mpm.courant = {} under an affine transfer (APIC, AFLIP): an elastic block held at 0.75 and blew up at 0.8 (docs/mpm.md, \"Time step\"); soil that yields may survive it, stiff or cohesive parts may not; use 0.7 or less",
             m.courant
         ));
     }

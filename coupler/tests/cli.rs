@@ -153,16 +153,25 @@ fn check_reports_the_mpm_column() {
             .unwrap();
         String::from_utf8_lossy(&out.stdout).into_owned()
     };
-    assert!(check_at("apic").contains("mpm.courant = 0.8 under APIC: an elastic block held at 0.75"));
-    assert!(check_at("flip").contains("warnings     none"), "{}", check_at("flip"));
-    // FLIP's filter keys set under APIC are named as unused.
+    for affine in ["apic", "aflip"] {
+        let text = check_at(affine);
+        assert!(
+            text.contains("mpm.courant = 0.8 under an affine transfer (APIC, AFLIP): an elastic block held at 0.75"),
+            "{text}"
+        );
+    }
+    let flip = check_at("flip");
+    assert!(!flip.contains("mpm.courant = 0.8"), "{flip}");
+    // The scene's AFLIP share is named as unused under FLIP.
+    assert!(flip.contains("mpm.flip_share = 0.9 is unused under mpm.transfer = \"flip\""), "{flip}");
+    // FLIP's filter keys set under AFLIP are named as unused.
     let out = coupler()
         .args(["check", "scenes/ceccato2020/mpm_sat_h060.toml", "--set", "mpm.pic_fraction=0"])
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
-        text.contains("mpm.pic_fraction = 0 and mpm.xpic_order = 2 are unused under mpm.transfer = \"apic\""),
+        text.contains("mpm.pic_fraction = 0 and mpm.xpic_order = 2 are unused under mpm.transfer = \"aflip\""),
         "{text}"
     );
 }
