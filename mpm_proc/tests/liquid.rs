@@ -31,6 +31,16 @@ fn water_column(mpm: &str) -> Mpm {
     m
 }
 
+/// The `[mpm]` keys of `transfer`: under AFLIP the water points take the
+/// FLIP share too (the scenes keep the pore water on APIC,
+/// `liquid_flip_share = 0`, which here would be APIC again).
+fn transfer_keys(transfer: &str) -> String {
+    match transfer {
+        "aflip" => "transfer = \"aflip\"\nliquid_flip_share = 0.9".to_string(),
+        other => format!("transfer = \"{other}\""),
+    }
+}
+
 /// A free-water block L0 × H0 lifted to mid-box (no wall above or below
 /// it, gravity off) whose halves fly apart at ±v0: a tension wave runs
 /// from the mid-plane into each half, behind it the water at rest under
@@ -43,7 +53,8 @@ fn water_column(mpm: &str) -> Mpm {
 fn split_block(cavitation: f64, transfer: &str) -> (f64, f64, f64, f64) {
     let k = 2.0e7;
     let mut m = water_column(&format!(
-        "element_size = 0.002\nliquid_bulk_modulus = {k:e}\ncavitation_threshold = {cavitation:e}\ndamping = 0.0\ntransfer = \"{transfer}\""
+        "element_size = 0.002\nliquid_bulk_modulus = {k:e}\ncavitation_threshold = {cavitation:e}\ndamping = 0.0\n{}",
+        transfer_keys(transfer)
     ));
     m.params.gravity = [0.0, 0.0];
     let (v0, lift, mid) = (0.05, 0.03, 0.03 + 0.5 * H0);
