@@ -8,7 +8,7 @@ use foxglove::Decode;
 use integration_tests::coupler_run;
 
 /// The dry H0 = 0.06 m column as shipped (4 mm elements, 1800 points, the
-/// DEM's Coulomb floor μ = 0.577, APIC), to rest or 8 t_ref.
+/// DEM's Coulomb floor μ = 0.577, AFLIP), to rest or 8 t_ref.
 fn dry_run() -> &'static PathBuf {
     static RUN: OnceLock<PathBuf> = OnceLock::new();
     RUN.get_or_init(|| {
@@ -56,7 +56,7 @@ fn dry_mpm_column_collapses_and_stops() {
     // deposit of the column's area L0 H0 against the back wall with its
     // slope at φ = 35° reaches L_f = √(2 L0 H0 / tan φ) = 0.083 m, runout
     // 1.07; less would leave a slope steeper than φ (the rough floor gives
-    // 1.16). Upper bound: the floor's friction must hold the mass back;
+    // 1.50 under AFLIP, 1.16 under APIC). Upper bound: the floor's friction must hold the mass back;
     // without it (wall_friction = 0) the column slides to 7.4 and does not
     // stop by 12 t_ref (docs/RESULTS.md, "MPM beside DEM–LBM").
     assert!(runout > 1.07 && runout < 2.8, "runout {runout}");
@@ -106,7 +106,7 @@ fn summary_front_len() -> usize {
 }
 
 /// The saturated H0 = 0.06 m column as shipped (4 mm elements, 1800 + 1800
-/// points, the DEM's floor, APIC), to rest or 8.5 t_ref.
+/// points, the DEM's floor, AFLIP), to rest or 8.5 t_ref.
 fn saturated_run() -> &'static PathBuf {
     static RUN: OnceLock<PathBuf> = OnceLock::new();
     RUN.get_or_init(|| coupler_run("mpm_sat_h060", "scenes/ceccato2020/mpm_sat_h060.toml", &[]))
@@ -146,7 +146,7 @@ fn saturated_mpm_column_runs_out_further_than_the_dry_one() {
     assert!((runout - at(3.0)).abs() < 0.05 * runout, "front at 3 t_ref {} vs {runout} at rest", at(3.0));
     // Ceccato et al. 2020 §2: for a > 1 the saturated column runs out
     // further than the dry one. The dry MPM column of the same grid and soil
-    // stops at about 1.7 (dry_mpm_column_collapses_and_stops); the saturated one
+    // stops at about 2.0 (dry_mpm_column_collapses_and_stops); the saturated one
     // must go further, and a Mohr–Coulomb soil with φ = 35° cannot run out
     // more than twice as far as dry.
     let dry: serde_json::Value =
