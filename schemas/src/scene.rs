@@ -387,7 +387,7 @@ pub struct MpmSpec {
     /// with the share `pic_fraction`). `pic_fraction` and `xpic_order` are
     /// unused but under `flip`. Why AFLIP: the lab columns' runout under
     /// APIC moved by 10–12 % when its dissipation was halved, under AFLIP
-    /// by 0.3–2 %; FLIP + XPIC runs them out 2.3–3.0× further on the DEM's
+    /// by 0.3–2.6 %; FLIP + XPIC runs them out 2.3–3.0× further on the DEM's
     /// frictional floor and does not hold as the rough floor when the
     /// floor's friction is far above the soil's (docs/mpm.md, "Which
     /// transfer").
@@ -599,8 +599,9 @@ impl MpmTransfer {
 }
 
 /// The FLIP share of the default `aflip` transfer (`MpmSpec::flip_share`):
-/// the lab columns' runouts move by 0.3 % (dry) and 2.2 % (saturated) when
-/// it is raised to 0.95 (APIC's dissipation halved), docs/mpm.md "Which transfer".
+/// raised to 0.95 (the remaining dissipation halved) it moves the lab
+/// columns' runouts by +0.3 % dry and −0.7 % saturated at 4 mm, +1.7 % and
+/// −2.6 % at 2 mm (docs/mpm.md, "Which transfer (session 18)").
 pub const DEFAULT_FLIP_SHARE: f64 = 0.9;
 
 /// How an element's liquid points' pore pressures are tied together.
