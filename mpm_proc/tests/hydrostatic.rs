@@ -53,8 +53,8 @@ fn errors(mpm: &mpm_proc::solver::Mpm, h_s: f64, h_w: f64, h: f64) -> (f64, f64,
     (ep, ev, eh, et)
 }
 
-fn at_rest(h_s: f64, water: f64, box_height: f64) {
-    let scene = common::column(0.04, h_s, box_height, Some(water), 2.5e-3, "", &[]);
+fn at_rest(h_s: f64, water: f64, box_height: f64, mpm_keys: &str) {
+    let scene = common::column(0.04, h_s, box_height, Some(water), 2.5e-3, mpm_keys, &[]);
     let mut setup = build(&scene).unwrap();
     let mpm = &mut setup.mpm;
     let h = mpm.grid.h;
@@ -92,12 +92,20 @@ fn at_rest(h_s: f64, water: f64, box_height: f64) {
 
 #[test]
 fn saturated_column_at_rest_is_hydrostatic() {
-    at_rest(0.06, 0.06, 0.08);
+    at_rest(0.06, 0.06, 0.08, "");
+}
+
+#[test]
+fn saturated_column_at_rest_is_hydrostatic_without_the_pressure_plane() {
+    // Each point's own pressure history: the plane is not what makes the
+    // column at rest hydrostatic (it reproduces a linear field; this is
+    // the field it is given).
+    at_rest(0.06, 0.06, 0.08, "pressure_reconstruction = \"none\"\n");
 }
 
 #[test]
 fn free_water_above_the_soil_leaves_the_effective_stress_unchanged() {
-    at_rest(0.06, 0.076, 0.10);
+    at_rest(0.06, 0.076, 0.10, "");
 }
 
 #[test]
@@ -105,5 +113,5 @@ fn a_dry_top_above_the_water_table_carries_its_full_weight() {
     // Water table at 0.04 m in a 0.06 m column: the top 2 cm are dry soil
     // (solid points only), whose full weight (1 − n) ρ_s g loads the
     // saturated part below.
-    at_rest(0.06, 0.04, 0.08);
+    at_rest(0.06, 0.04, 0.08, "");
 }
