@@ -291,6 +291,7 @@ fn run_on_pool(
     let mut status = "completed";
     let mut failure = None;
     let mut rest_frames = 0;
+    let mut has_moved = false;
     let mut last_frame = Instant::now();
     let mut last_progress = Instant::now();
     let started = Instant::now();
@@ -325,7 +326,12 @@ fn run_on_pool(
                 record_state(&mut frames, &mpm)?;
             }
             let released = mpm.state.gates_held.iter().all(|h| !h);
-            rest_frames = if released && m.moving_fraction <= out.rest_fraction { rest_frames + 1 } else { 0 };
+            // Only a column that has moved can come to rest: frames closer
+            // than the release's first motion would otherwise stop the run
+            // at t ≈ 0 (record_interval = 2e-5 s stopped after 6 steps).
+            has_moved |= m.moving_fraction > out.rest_fraction;
+            rest_frames =
+                if released && has_moved && m.moving_fraction <= out.rest_fraction { rest_frames + 1 } else { 0 };
             if out.stop_at_rest && rest_frames >= 3 {
                 status = "at_rest";
                 frames.log(t, log_level::INFO, "at rest")?;

@@ -279,3 +279,19 @@ fn solvers_refuse_scenes_of_another_method_with_the_fix() {
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("selects the MPM") && !err.contains("panicked"), "{err}");
 }
+
+#[test]
+fn dense_frames_do_not_stop_a_column_that_has_not_moved_yet() {
+    // Frames 2e-5 s apart (two steps): in the first frames after the gate
+    // opens no point has reached the rest speed yet, and three such frames
+    // once ended the run "at rest" after six steps. Rest needs motion first.
+    let out = coupler_run(
+        "mpm_dense_frames",
+        "scenes/ceccato2020/mpm_dry_h060.toml",
+        &["--set", "output.record_interval=2e-5", "--set", "output.end_time=0.004"],
+    );
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["status"], "completed");
+    assert!((s["sim_time"].as_f64().unwrap() - 0.004).abs() < 2e-5, "{}", s["sim_time"]);
+}
