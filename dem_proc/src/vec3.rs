@@ -1,7 +1,7 @@
 //! Small inline operations on three-component vectors for the hot kernels:
-//! plain scalar code the compiler keeps in registers (measured ~2x fewer
-//! instructions than the generic nalgebra operators in these loops;
-//! nalgebra stays in the non-hot code and the tests). Generic over the
+//! plain scalar code the compiler keeps in registers (an early measurement
+//! gave ~2x fewer instructions than the generic nalgebra operators in these
+//! loops; why this form stays is in docs/ARCHITECTURE.md). Generic over the
 //! component so that the contact kernel's lanes ([`crate::lanes::Lanes`],
 //! one contact per lane) use the very same operations as `f64`.
 

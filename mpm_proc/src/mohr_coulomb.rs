@@ -341,6 +341,38 @@ impl MohrCoulomb {
 mod tests {
     use super::*;
 
+    /// The closed-form principal stresses and axes against nalgebra's
+    /// general symmetric eigensolver on the full 3 × 3 plane-strain tensor
+    /// (σ_yy on its own axis): sorted values to 1e-9 of the stress scale,
+    /// and a value put back on the axes by `compose` is the tensor again.
+    #[test]
+    fn principal_stresses_match_a_general_eigensolver() {
+        let mut rng = Lcg(7);
+        for trial in 0..2000 {
+            let mut s = [0.0; 4];
+            for c in &mut s {
+                *c = -2.0e3 * rng.unit() + 5.0e2 * (rng.unit() - 0.5);
+            }
+            if trial % 10 == 0 {
+                s[1] = s[0]; // in-plane isotropic, θ undefined
+                s[2] = 0.0;
+            }
+            let [sxx, szz, sxz, syy] = s;
+            let tensor = nalgebra::Matrix3::new(sxx, 0.0, sxz, 0.0, syy, 0.0, sxz, 0.0, szz);
+            let mut eigen: Vec<f64> = tensor.symmetric_eigen().eigenvalues.iter().copied().collect();
+            eigen.sort_by(|a, b| b.total_cmp(a));
+            let p = Principal::of(&s);
+            let scale = s.iter().fold(1.0f64, |m, c| m.max(c.abs()));
+            for (closed, general) in p.values.iter().zip(&eigen) {
+                assert!((closed - general).abs() < 1e-9 * scale, "trial {trial}: {:?} against {eigen:?}", p.values);
+            }
+            let back = p.compose(p.values);
+            for (a, b) in back.iter().zip(&s) {
+                assert!((a - b).abs() < 1e-9 * scale, "trial {trial}: {back:?} against {s:?}");
+            }
+        }
+    }
+
     /// Lab sand of Ceccato et al. 2020 (E = 10 MPa, ν = 0.3, φ = 35°, c = 0,
     /// ψ = 0 assumed: reference §5).
     fn lab() -> MohrCoulomb {
