@@ -1,55 +1,22 @@
 //! Same scene, same result: on 1 and 2 threads, and after a restart from a
 //! recorded state (the `/mpm/state` record), bit for bit.
 
+mod common;
+
 use mpm_proc::run::MpmStateRecord;
 use mpm_proc::setup::build;
 use mpm_proc::solver::MpmState;
 use schemas::Scene;
 
-/// A saturated block 2 cm × 3 cm with free water beside it in a 6 × 4 cm
-/// box: it slumps at once (no gate, no gravity phase), so points cross
-/// elements, the soil fluidises at its surface and liquid leaves the soil.
+/// `scenes/validation/mpm_slump.toml`: a saturated block with free water
+/// beside it that slumps at once, so points cross elements, the soil
+/// fluidises at its surface and liquid leaves the soil.
 fn scene() -> Scene {
     scene_with(&[])
 }
 
 fn scene_with(overrides: &[&str]) -> Scene {
-    let text = r#"
-[scene]
-name = "slump"
-method = "mpm"
-[domain]
-min = [0.0, 0.0, 0.0]
-max = [0.06, 0.05, 0.04]
-gravity = [0.0, 0.0, -9.81]
-walls = ["x_min", "x_max", "z_min"]
-[[particles]]
-name = "soil"
-density = 2600.0
-diameter = 2.5e-3
-[particles.packing]
-method = "deposit"
-region = { min = [0.0, 0.0, 0.0], max = [0.02, 0.05, 0.03] }
-porosity = 0.4
-seed = 1
-[[fluids]]
-name = "water"
-density = 1000.0
-viscosity = 1.0e-3
-region = { min = [0.0, 0.0, 0.0], max = [0.03, 0.05, 0.03] }
-[mpm]
-element_size = 0.002
-gravity_phase_max_time = 0.0
-[output]
-end_time = 0.01
-record_interval = 0.005
-[analysis]
-column_length = 0.02
-column_height = 0.03
-condition = "saturated"
-"#;
-    let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-    Scene::from_toml_str(text, std::path::Path::new("."), &overrides).unwrap()
+    common::validation_scene("mpm_slump", overrides)
 }
 
 fn run(threads: usize, steps: usize, from: Option<&MpmState>) -> MpmState {

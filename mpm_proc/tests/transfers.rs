@@ -13,48 +13,17 @@ use mpm_proc::run::gravity_phase;
 use mpm_proc::setup::build;
 use schemas::Scene;
 
-/// A dry 2 × 2 cm block in the middle of a 10 × 10 cm box, stress free,
-/// far from the walls; `transfer` and the PIC share as given.
-fn block(mpm: &str) -> Scene {
-    let text = format!(
-        r#"
-[scene]
-name = "spinning_block"
-method = "mpm"
-[domain]
-min = [0.0, 0.0, 0.0]
-max = [0.10, 0.05, 0.10]
-gravity = [0.0, 0.0, -9.81]
-walls = ["x_min", "x_max", "z_min"]
-[[particles]]
-name = "soil"
-density = 2600.0
-diameter = 2.5e-3
-[particles.packing]
-method = "deposit"
-region = {{ min = [0.04, 0.0, 0.04], max = [0.06, 0.05, 0.06] }}
-porosity = 0.4
-seed = 1
-[mpm]
-element_size = 0.005
-initial_stress = "zero"
-{mpm}
-[output]
-end_time = 0.01
-record_interval = 0.005
-[analysis]
-column_length = 0.02
-column_height = 0.02
-condition = "dry"
-"#
-    );
-    Scene::from_toml_str(&text, std::path::Path::new("."), &[]).unwrap()
+/// `scenes/validation/mpm_spinning_block.toml`: a dry 2 × 2 cm block in
+/// the middle of a 10 × 10 cm box, stress free, far from the walls, under
+/// the `--set` overrides given (the transfer and its shares).
+fn block(overrides: &[&str]) -> Scene {
+    common::validation_scene("mpm_spinning_block", overrides)
 }
 
 /// Angular momentum about the block's centre after `steps` steps of a
 /// rigid rotation at 2 rad/s with gravity off, over its initial value.
-fn spin(mpm: &str, steps: usize) -> f64 {
-    let mut setup = build(&block(mpm)).unwrap();
+fn spin(overrides: &[&str], steps: usize) -> f64 {
+    let mut setup = build(&block(overrides)).unwrap();
     let m = &mut setup.mpm;
     m.params.gravity = [0.0, 0.0];
     let (omega, centre) = (2.0, [0.05, 0.05]);
@@ -84,9 +53,9 @@ fn apic_keeps_a_rigid_rotation_that_pic_damps() {
     // the second-order strain of a finite rotation, ~(ω Δt)² per step.
     // AFLIP blends the FLIP update (which keeps a rigid motion whole) into
     // APIC's, so it must keep it as well.
-    let apic = spin("transfer = \"apic\"", 200);
-    let aflip = spin("transfer = \"aflip\"", 200);
-    let pic = spin("transfer = \"flip\"\npic_fraction = 1.0\nxpic_order = 1", 200);
+    let apic = spin(&["mpm.transfer=\"apic\""], 200);
+    let aflip = spin(&["mpm.transfer=\"aflip\""], 200);
+    let pic = spin(&["mpm.transfer=\"flip\"", "mpm.pic_fraction=1.0", "mpm.xpic_order=1"], 200);
     eprintln!("angular momentum kept: APIC {apic:.6}, AFLIP {aflip:.6}, PIC {pic:.6}");
     assert!((apic - 1.0).abs() < 1e-3, "APIC kept {apic} of the angular momentum");
     assert!((aflip - 1.0).abs() < 1e-3, "AFLIP kept {aflip} of the angular momentum");

@@ -22,50 +22,16 @@ const G: f64 = 9.81;
 /// (docs/mpm.md, "Frictional walls"). Soil yields and damps that ringing.
 const MU: f64 = 0.1;
 
-/// A dry elastic block 20 × 8 mm (cohesion keeps it from yielding) on a
-/// frictional floor of μ in a 12 × 4 cm box, gravity tilted by `slope`
-/// radians toward +x, no damping, `mpm` lines added.
+/// `scenes/validation/mpm_sliding_block.toml`: a dry elastic block
+/// 20 × 8 mm (cohesion keeps it from yielding) on a frictional floor of μ
+/// in a 12 × 4 cm box, gravity tilted by `slope` radians toward +x, no
+/// damping, the `--set` overrides added.
 fn block(mu: f64, slope: f64, overrides: &[&str]) -> Mpm {
     let (gx, gz) = (G * slope.sin(), -G * slope.cos());
-    let text = format!(
-        r#"
-[scene]
-name = "sliding_block"
-method = "mpm"
-[domain]
-min = [0.0, 0.0, 0.0]
-max = [0.12, 0.05, 0.04]
-gravity = [{gx}, 0.0, {gz}]
-walls = ["x_min", "x_max", "z_min"]
-[[particles]]
-name = "soil"
-density = 2600.0
-diameter = 2.5e-3
-[particles.packing]
-method = "deposit"
-region = {{ min = [0.02, 0.0, 0.0], max = [0.04, 0.05, 0.008] }}
-porosity = 0.4
-seed = 1
-[mpm]
-element_size = 0.002
-points_per_element = 4
-cohesion = 1.0e5
-damping = 0.0
-floor = "frictional"
-wall_friction = {mu}
-initial_stress = "zero"
-[output]
-end_time = 0.2
-record_interval = 0.01
-[analysis]
-column_length = 0.02
-column_height = 0.008
-condition = "dry"
-"#
-    );
-    let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-    let scene = Scene::from_toml_str(&text, std::path::Path::new("."), &overrides).unwrap_or_else(|e| panic!("{e}"));
-    build(&scene).unwrap().mpm
+    let (gravity, friction) = (format!("domain.gravity=[{gx}, 0.0, {gz}]"), format!("mpm.wall_friction={mu}"));
+    let mut sets = vec![gravity.as_str(), friction.as_str()];
+    sets.extend_from_slice(overrides);
+    build(&common::validation_scene("mpm_sliding_block", &sets)).unwrap().mpm
 }
 
 /// Mass-weighted mean x position and x velocity of the solid.

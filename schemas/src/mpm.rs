@@ -237,46 +237,6 @@ mod tests {
     use super::*;
     use std::path::Path;
 
-    /// The lab column of Ceccato et al. 2020 for the MPM (Table 2: n0 = 0.40).
-    const COLUMN: &str = r#"
-[scene]
-name = "mpm_column"
-method = "mpm"
-[domain]
-min = [0.0, 0.0, 0.0]
-max = [0.7, 0.05, 0.12]
-gravity = [0.0, 0.0, -9.81]
-walls = ["x_min", "x_max", "z_min", "z_max"]
-[[gates]]
-name = "gate"
-point = [0.04, 0.0, 0.0]
-normal = [-1.0, 0.0, 0.0]
-release_time = 0.0
-[[particles]]
-name = "soil"
-density = 2600.0
-diameter = 2.5e-3
-[particles.packing]
-method = "deposit"
-region = { min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }
-porosity = 0.4
-seed = 1
-[[fluids]]
-name = "water"
-density = 1000.0
-viscosity = 1e-3
-region = { min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }
-[mpm]
-courant = 0.5
-[output]
-end_time = 0.85
-record_interval = 0.01
-[analysis]
-column_length = 0.04
-column_height = 0.06
-condition = "saturated"
-"#;
-
     fn close(a: f64, b: f64, rel: f64) -> bool {
         (a - b).abs() <= rel * b.abs()
     }
@@ -298,9 +258,13 @@ condition = "saturated"
         assert_eq!(t.steps, (0.85 / t.dt).ceil() as u64);
     }
 
+    /// The lab column of Ceccato et al. 2020 for the MPM (Table 2:
+    /// n0 = 0.40), every MPM setting at its default
+    /// (`scenes/validation/mpm_lab_column_defaults.toml`).
     fn load(set: &[&str]) -> Scene {
         let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
-        Scene::from_toml_str(COLUMN, Path::new("."), &set).unwrap()
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/validation/mpm_lab_column_defaults.toml");
+        Scene::load(&path, &set).unwrap()
     }
 
     #[test]

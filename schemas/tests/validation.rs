@@ -189,47 +189,17 @@ fn resolved_scene_round_trips() {
 // MPM scenes
 // ---------------------------------------------------------------------------
 
-/// The saturated lab column for the MPM: no [dem] or [lbm], defaults for [mpm].
-const MPM: &str = r#"
-[scene]
-name = "m"
-method = "mpm"
-[domain]
-min = [0.0, 0.0, 0.0]
-max = [0.7, 0.05, 0.12]
-gravity = [0.0, 0.0, -9.81]
-walls = ["x_min", "x_max", "z_min", "z_max"]
-[[gates]]
-name = "gate"
-point = [0.04, 0.0, 0.0]
-normal = [-1.0, 0.0, 0.0]
-release_time = 0.0
-[[particles]]
-name = "soil"
-density = 2600.0
-diameter = 2.5e-3
-[particles.packing]
-method = "deposit"
-region = { min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }
-porosity = 0.4
-seed = 1
-[[fluids]]
-name = "water"
-density = 1000.0
-viscosity = 1e-3
-region = { min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }
-[output]
-end_time = 0.85
-record_interval = 0.01
-[analysis]
-column_length = 0.04
-column_height = 0.06
-condition = "saturated"
-"#;
+/// The saturated lab column for the MPM: no [dem] or [lbm], defaults for
+/// [mpm] (`scenes/validation/mpm_lab_column_defaults.toml`).
+static MPM: std::sync::LazyLock<String> = std::sync::LazyLock::new(|| {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/validation/mpm_lab_column_defaults.toml");
+    std::fs::read_to_string(path).unwrap()
+});
 
 #[test]
 fn valid_mpm_scene_loads_without_dem_or_lbm() {
-    let s = load(MPM, &[]).unwrap();
+    let s = load(&MPM, &[]).unwrap();
     assert_eq!(s.method(), Method::Mpm);
     assert!(s.spec.dem.is_none() && s.spec.lbm.is_none() && s.spec.mpm.is_none());
     let m = s.mpm();
@@ -240,36 +210,36 @@ fn valid_mpm_scene_loads_without_dem_or_lbm() {
     // scene's flip_share is unused, and said so (under FLIP the share is
     // pic_fraction).
     for transfer in ["apic", "flip"] {
-        let m = load(MPM, &[&format!("mpm.transfer=\"{transfer}\""), "mpm.flip_share=0.5"]).unwrap().mpm();
+        let m = load(&MPM, &[&format!("mpm.transfer=\"{transfer}\""), "mpm.flip_share=0.5"]).unwrap().mpm();
         assert_eq!(m.flip_share_in_effect(), 0.0);
         let note = schemas::scene::unused_flip_keys(&m).expect("a note");
         assert!(note.contains("mpm.flip_share = 0.5 is unused") && note.contains("aflip"), "{note}");
     }
-    assert!(schemas::scene::unused_flip_keys(&load(MPM, &["mpm.flip_share=0.5"]).unwrap().mpm()).is_none());
-    let apic = load(MPM, &["mpm.transfer=\"apic\""]).unwrap().mpm();
+    assert!(schemas::scene::unused_flip_keys(&load(&MPM, &["mpm.flip_share=0.5"]).unwrap().mpm()).is_none());
+    let apic = load(&MPM, &["mpm.transfer=\"apic\""]).unwrap().mpm();
     assert_eq!(apic.flip_share_in_effect(), 0.0);
-    assert_eq!(load(MPM, &["mpm.flip_share=0.95"]).unwrap().mpm().flip_share_in_effect(), 0.95);
-    assert!(load(MPM, &["mpm.flip_share=1.0"]).unwrap_err().names_key("mpm.flip_share"));
+    assert_eq!(load(&MPM, &["mpm.flip_share=0.95"]).unwrap().mpm().flip_share_in_effect(), 0.95);
+    assert!(load(&MPM, &["mpm.flip_share=1.0"]).unwrap_err().names_key("mpm.flip_share"));
     // The pore water stays on APIC unless asked.
     assert_eq!(m.liquid_flip_share_in_effect(), 0.0);
-    let both = load(MPM, &["mpm.liquid_flip_share=0.9"]).unwrap().mpm();
+    let both = load(&MPM, &["mpm.liquid_flip_share=0.9"]).unwrap().mpm();
     assert_eq!((both.flip_share_in_effect(), both.liquid_flip_share_in_effect()), (0.9, 0.9));
-    assert!(load(MPM, &["mpm.liquid_flip_share=1.0"]).unwrap_err().names_key("mpm.liquid_flip_share"));
+    assert!(load(&MPM, &["mpm.liquid_flip_share=1.0"]).unwrap_err().names_key("mpm.liquid_flip_share"));
     // The resolved scene keeps the method and reloads.
     let again = load(&s.to_toml(), &[]).unwrap();
     assert_eq!(again.method(), Method::Mpm);
     // One phase each: dry soil, water alone.
-    assert!(load(MPM, &["fluids=[]", "analysis.condition=\"dry\""]).is_ok());
-    assert!(load(MPM, &["particles=[]", "analysis.condition=\"liquid\""]).is_ok());
+    assert!(load(&MPM, &["fluids=[]", "analysis.condition=\"dry\""]).is_ok());
+    assert!(load(&MPM, &["particles=[]", "analysis.condition=\"liquid\""]).is_ok());
 }
 
 #[test]
 fn mpm_ignores_the_dem_and_lbm_requirements() {
     // [dem] and [lbm] present but invalid: ignored under mpm.
-    let text = format!("{MPM}\n[dem]\nnormal_stiffness = -1.0\nrestitution = 0.88\nfriction = 0.5\nrolling_friction = 0.05\ntime_step = 1.0\n[lbm]\nspacing = 0.0\ntime_step = 8e-5\n");
+    let text = format!("{}\n[dem]\nnormal_stiffness = -1.0\nrestitution = 0.88\nfriction = 0.5\nrolling_friction = 0.05\ntime_step = 1.0\n[lbm]\nspacing = 0.0\ntime_step = 8e-5\n", *MPM);
     assert!(load(&text, &[]).is_ok());
     // Gravity deposition's non-zero gravity is not needed.
-    assert!(load(MPM, &["domain.gravity=[0.0, 0.0, 0.0]"]).is_ok());
+    assert!(load(&MPM, &["domain.gravity=[0.0, 0.0, 0.0]"]).is_ok());
     // The same file as DEM-LBM does check them.
     let e = load(&text, &["scene.method=\"dem_lbm\""]).unwrap_err();
     assert!(e.names_key("dem.normal_stiffness") && e.names_key("lbm.spacing"), "{e}");
@@ -347,7 +317,7 @@ const BAD_MPM: &[(&str, &str, &str)] = &[
 #[test]
 fn bad_mpm_values_name_their_key() {
     for (set, key, reason) in BAD_MPM {
-        let e = load(MPM, &[set]).expect_err(set);
+        let e = load(&MPM, &[set]).expect_err(set);
         assert!(e.names_key(key), "{set}: error does not name {key}: {e}");
         assert!(e.to_string().contains(reason), "{set}: reason should mention {reason:?}: {e}");
     }
@@ -357,7 +327,7 @@ fn bad_mpm_values_name_their_key() {
     // ... but the grid only under mpm.
     assert!(load(VALID, &["mpm.element_size=0.0033"]).is_ok());
     // A grid that fits the domain but not the gate and the column length.
-    let e = load(MPM, &["domain.max=[0.72, 0.05, 0.12]", "mpm.element_size=0.012"]).unwrap_err();
+    let e = load(&MPM, &["domain.max=[0.72, 0.05, 0.12]", "mpm.element_size=0.012"]).unwrap_err();
     assert!(e.names_key("gates[0].point[0]") && e.to_string().contains("the nearest are 0.036 and 0.048 m"), "{e}");
     assert!(e.names_key("particles[0].packing.region.max[0]") && e.names_key("fluids[0].region.max[0]"), "{e}");
     assert!(!e.names_key("particles[0].packing.region.max[2]"), "0.06 m is 5 elements: {e}");
@@ -374,7 +344,7 @@ fn mpm_takes_one_soil_and_one_liquid() {
     let e = load(&two_waters, &[]).unwrap_err();
     assert!(e.names_key("fluids") && e.to_string().contains("at most one [[fluids]] block, got 2"), "{e}");
     // Neither block.
-    let e = load(MPM, &["particles=[]", "fluids=[]", "analysis.condition=\"dry\""]).unwrap_err();
+    let e = load(&MPM, &["particles=[]", "fluids=[]", "analysis.condition=\"dry\""]).unwrap_err();
     assert!(e.to_string().contains("nothing to simulate"), "{e}");
     // `count` instead of `porosity`.
     let counted = MPM.replace("porosity = 0.4", "count = 5000");
@@ -394,7 +364,7 @@ fn mpm_takes_one_soil_and_one_liquid() {
 
 #[test]
 fn every_mpm_problem_is_reported_at_once() {
-    let e = load(MPM, &["mpm.courant=0", "gates[0].point=[0.041, 0.0, 0.0]", "domain.gravity=[0.0, 1.0, -9.81]"])
+    let e = load(&MPM, &["mpm.courant=0", "gates[0].point=[0.041, 0.0, 0.0]", "domain.gravity=[0.0, 1.0, -9.81]"])
         .unwrap_err();
     assert!(e.names_key("mpm.courant") && e.names_key("gates[0].point[0]") && e.names_key("domain.gravity"), "{e}");
 }

@@ -1,4 +1,5 @@
-//! Scenes the MPM tests build from TOML text (validated like a user's file).
+//! Scenes the MPM tests load from `scenes/validation/` or build from TOML
+//! text (validated like a user's file).
 
 use mpm_proc::run::Progress;
 use schemas::Scene;
@@ -11,6 +12,14 @@ impl Progress for Quiet {
     fn gravity_phase(&mut self, _: f64, _: f64) {}
     fn collapse(&mut self, _: f64, _: f64, _: u64) {}
     fn log(&mut self, _: &str) {}
+}
+
+/// The shipped scene `scenes/validation/NAME.toml` with `--set` overrides.
+#[allow(dead_code)] // not every test file loads one
+pub fn validation_scene(name: &str, overrides: &[&str]) -> Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../scenes/validation/{name}.toml"));
+    let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    Scene::load(&path, &overrides).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 /// A saturated or dry soil column `width` × `height` (m) in a box `box_height`
