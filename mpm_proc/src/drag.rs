@@ -61,8 +61,8 @@ fn clamp_fraction(porosity: f64) -> f64 {
 impl DragLaw {
     /// Ergun's constants (A = 150, B = 1.75) with the quadratic term on.
     ///
-    /// `grain_diameter` D [m], `viscosity` μ [Pa·s], `liquid_density` ρ_L
-    /// [kg/m³]; all are expected finite and > 0 (not checked here: the scene
+    /// `grain_diameter` D (m), `viscosity` μ (Pa·s), `liquid_density` ρ_L
+    /// (kg/m³); all are expected finite and > 0 (not checked here: the scene
     /// validation owns that).
     pub const fn ergun(grain_diameter: f64, viscosity: f64, liquid_density: f64) -> Self {
         DragLaw { grain_diameter, ergun_a: ERGUN_A, ergun_b: ERGUN_B, viscosity, liquid_density, quadratic: true }
@@ -91,7 +91,7 @@ impl DragLaw {
 
     /// Drag per unit mixture volume per unit relative velocity, N·s/m⁴:
     /// f_d = coefficient · (v_L − v_S) (Eq. 7),
-    /// coefficient = μ n²/κ + [quadratic] β n³ ρ_L |v_L − v_S|.
+    /// coefficient = μ n²/κ + (if `quadratic`) β n³ ρ_L |v_L − v_S|.
     ///
     /// `relative_speed` = |v_L − v_S| [m/s] (its sign is ignored). The one
     /// porosity sets the prefactors (clamped to [0, 1]) and κ, β (clamped

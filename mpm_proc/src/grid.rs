@@ -155,7 +155,7 @@ pub fn gimp(d: f64, h: f64, l: f64) -> (f64, f64) {
 }
 
 /// Three nodes per axis from `base` (stored index of the lowest node), with
-/// weights w and derivatives g: N = wx[j]·wz[l], ∇N = (gx[j]·wz[l], wx[j]·gz[l])
+/// weights w and derivatives g: N = wx\[j\]·wz\[l\], ∇N = (gx\[j\]·wz\[l\], wx\[j\]·gz\[l\])
 /// for node base + l·row + j. Linear shapes use the first two of each.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Stencil {

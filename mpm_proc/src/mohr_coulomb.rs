@@ -133,8 +133,8 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
 impl MohrCoulomb {
     /// friction and dilatancy angles in degrees; E Pa, ν, c Pa. Panics are not allowed for valid input (E>0, 0<ν<0.5, 0≤ψ≤φ<90, c≥0).
     ///
-    /// `young` E [Pa], `poisson` ν, `friction_deg` φ [°], `cohesion` c [Pa],
-    /// `dilatancy_deg` ψ [°]. Nothing here panics or divides by sin φ, so
+    /// `young` E (Pa), `poisson` ν, `friction_deg` φ (°), `cohesion` c (Pa),
+    /// `dilatancy_deg` ψ (°). Nothing here panics or divides by sin φ, so
     /// φ = 0 (Tresca, 2c = σ1 − σ3) is accepted; the caller validates the
     /// ranges (outside them the stiffness or the returns lose meaning).
     pub fn new(young: f64, poisson: f64, friction_deg: f64, cohesion: f64, dilatancy_deg: f64) -> Self {

@@ -156,6 +156,7 @@ struct Frames {
     max_kinetic_energy: f64,
     max_fluidised: f64,
     max_pore_pressure: f64,
+    peak_pore_pressure: f64,
 }
 
 impl Frames {
@@ -248,6 +249,7 @@ fn run_on_pool(
         max_kinetic_energy: 0.0,
         max_fluidised: 0.0,
         max_pore_pressure: 0.0,
+        peak_pore_pressure: 0.0,
     };
     if opts.record {
         let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
@@ -300,7 +302,8 @@ fn run_on_pool(
     // The section lies at mid-width of the flume, so it overlays a DEM–LBM run.
     let mid_width = (0.5 * (scene.spec.domain.min[1] + scene.spec.domain.max[1])) as f32;
     release_gates(&mut mpm, &gates, &mut frames)?;
-    record_frame(&mut frames, &mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, 0.0)?;
+    mpm.take_pore_pressure_peak(); // the gravity phase's are not the collapse's
+    record_frame(&mut frames, &mut mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, 0.0)?;
     record_state(&mut frames, &mpm)?;
     while mpm.state.steps < total_steps {
         mpm.step();
@@ -321,7 +324,7 @@ fn run_on_pool(
             }
             let rate = steps_per_frame as f64 * points / last_frame.elapsed().as_secs_f64().max(1e-9);
             last_frame = Instant::now();
-            let m = record_frame(&mut frames, &mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, rate)?;
+            let m = record_frame(&mut frames, &mut mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, rate)?;
             if steps.is_multiple_of(steps_per_state) {
                 record_state(&mut frames, &mpm)?;
             }
@@ -347,7 +350,7 @@ fn run_on_pool(
     let (t, steps) = (mpm.state.time, mpm.state.steps);
     progress.collapse(t, out.end_time, steps);
     if !steps.is_multiple_of(steps_per_frame) && failure.is_none() {
-        record_frame(&mut frames, &mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, 0.0)?;
+        record_frame(&mut frames, &mut mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, 0.0)?;
     }
     record_state(&mut frames, &mpm)?;
 
@@ -405,6 +408,7 @@ fn run_on_pool(
             final_kinetic_energy: s.set.kinetic_energy() + mpm.state.liquid.set.kinetic_energy(),
             fluidised_fraction_max: frames.max_fluidised,
             max_pore_pressure: frames.max_pore_pressure,
+            peak_pore_pressure: frames.peak_pore_pressure,
             quadratic_drag: mpm.params.drag.quadratic,
             recording_fraction: frames.seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),
@@ -476,7 +480,7 @@ fn record_state(frames: &mut Frames, mpm: &Mpm) -> Result<(), RecordError> {
 #[allow(clippy::too_many_arguments)]
 fn record_frame(
     frames: &mut Frames,
-    mpm: &Mpm,
+    mpm: &mut Mpm,
     y: f32,
     t_ref: f64,
     x0: f64,
@@ -486,6 +490,8 @@ fn record_frame(
     rate: f64,
 ) -> Result<Measures, RecordError> {
     let started = Instant::now();
+    let peak_p = mpm.take_pore_pressure_peak();
+    let mpm = &*mpm;
     let t = mpm.state.time;
     let mut scratch = std::mem::take(&mut frames.scratch);
     let m = measure(mpm, fraction, rest_speed, &mut scratch);
@@ -505,6 +511,7 @@ fn record_frame(
     frames.max_fluidised = frames.max_fluidised.max(m.fluidised_fraction);
     let max_p = mpm.state.liquid.pressure.iter().cloned().fold(0.0, f64::max);
     frames.max_pore_pressure = frames.max_pore_pressure.max(max_p);
+    frames.peak_pore_pressure = frames.peak_pore_pressure.max(peak_p).max(max_p);
     if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
         let solid_fields = |p: usize| {
             let sg = s.stress[p];
@@ -530,6 +537,7 @@ fn record_frame(
             max_speed_liquid: l.set.max_speed(),
             fluidised_fraction: m.fluidised_fraction,
             max_pore_pressure: max_p,
+            peak_pore_pressure: peak_p.max(max_p),
             mean_porosity: if s.set.is_empty() {
                 f64::NAN
             } else {

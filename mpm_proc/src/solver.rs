@@ -306,6 +306,9 @@ pub struct Mpm {
     pub timing: bool,
     /// The frictional walls' forces on the solid in the last step.
     pub wall_forces: WallForces,
+    /// Largest pore pressure at the end of any step since the recorder last
+    /// took it (`take_pore_pressure_peak`), Pa: a diagnostic, not state.
+    pore_pressure_peak: f64,
 }
 
 /// Sums over the frictional wall nodes (`Fixities::contact`) of one step,
@@ -403,6 +406,7 @@ impl Mpm {
             stage_seconds: StageSeconds::default(),
             timing: false,
             wall_forces: WallForces::default(),
+            pore_pressure_peak: 0.0,
             state,
         };
         mpm.apply_gate_fixities();
@@ -432,6 +436,12 @@ impl Mpm {
         self.apply_gate_fixities();
     }
 
+    /// The largest pore pressure at the end of any step since the last
+    /// call (0 before any liquid pressure), and starts a new interval.
+    pub fn take_pore_pressure_peak(&mut self) -> f64 {
+        std::mem::take(&mut self.pore_pressure_peak)
+    }
+
     /// Advances one step of Δt.
     pub fn step(&mut self) {
         let t0 = self.timing.then(std::time::Instant::now);
@@ -449,6 +459,7 @@ impl Mpm {
         self.volumetric_strain_per_element();
         self.update_points();
         self.reconstruct_pressure();
+        self.pore_pressure_peak = self.state.liquid.pressure.iter().fold(self.pore_pressure_peak, |m, &p| m.max(p));
         self.state.time += self.params.dt;
         self.state.steps += 1;
         if let (Some(t0), Some(t1), Some(t2), Some(t3)) = (t0, t1, t2, t3) {

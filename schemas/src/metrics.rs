@@ -143,6 +143,11 @@ pub struct MpmMetrics {
     /// Largest pore pressure, Pa, and mean porosity of the solid points.
     pub max_pore_pressure: f64,
     pub mean_porosity: f64,
+    /// Largest pore pressure of any liquid point at the end of any step
+    /// since the previous frame, Pa: pulses two or three steps long (cell
+    /// crossings, a drained element refilling) fall between frames and
+    /// show here only.
+    pub peak_pore_pressure: f64,
     /// Solid and liquid mass, kg/m: constant (points carry fixed masses).
     pub solid_mass: f64,
     pub liquid_mass: f64,

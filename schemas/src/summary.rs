@@ -216,6 +216,11 @@ pub struct MpmDetails {
     /// (against ρ_L g H0 at rest: the spikes of cell crossings show here).
     #[serde(default)]
     pub max_pore_pressure: f64,
+    /// Largest pore pressure of any liquid point at the end of any step of
+    /// the collapse, Pa: with the pulses of two or three steps that fall
+    /// between frames.
+    #[serde(default)]
+    pub peak_pore_pressure: f64,
     /// Whether the quadratic drag term was on.
     pub quadratic_drag: bool,
     /// Fraction of the run's wall time spent handing frames to the recorder.
