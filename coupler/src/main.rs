@@ -33,7 +33,7 @@ enum Command {
         /// Scene file (TOML). Default: the dry H0 = 0.06 m column of Ceccato et al. 2020.
         #[arg(default_value = DEFAULT_SCENE)]
         scene: PathBuf,
-        /// Output directory (default: runs/<scene name>).
+        /// Output directory (default: `runs/<scene name>`).
         #[arg(long)]
         out: Option<PathBuf>,
         /// Override a scene value, validated like the file (repeatable): --set output.end_time=0.2

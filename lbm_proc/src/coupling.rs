@@ -363,9 +363,9 @@ impl Coupling {
     /// wider than a periodic axis (2R + 2 cells) so that it never covers a
     /// cell twice. Parts outside a walled box cover nothing.
     ///
-    /// Stages: [`Coupling::place`] (per sphere), [`Coupling::find_crossings`]
-    /// (the rows each sphere crosses, in parallel), [`Coupling::sort_by_row`]
-    /// (a counting sort), [`Coupling::cover_rows`] (rows in parallel: the
+    /// Stages: `Coupling::place` (per sphere), `Coupling::find_crossings`
+    /// (the rows each sphere crosses, in parallel), `Coupling::sort_by_row`
+    /// (a counting sort), `Coupling::cover_rows` (rows in parallel: the
     /// forced cells come out in ascending cell order, so nothing is sorted
     /// by cell; ~600k overlaps a step in the paper's column, where a sort by
     /// cell and the random access of grouping by it cost more than the

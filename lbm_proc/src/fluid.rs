@@ -25,7 +25,7 @@
 //!   liquid (gas above the free surface) cost nothing; rows far from walls
 //!   and the surface skip the per-cell flag checks.
 //!
-//! The free surface (mass tracking, [`free_surface`]) adds interface and gas
+//! The free surface (mass tracking, `free_surface`) adds interface and gas
 //! cells: the kernel rebuilds the populations an interface cell pulls from
 //! gas and accumulates its mass exchange in the same pass; conversions run
 //! after it. Direct forcing of particle-covered cells (Eq. 5, [`ForcedCell`],

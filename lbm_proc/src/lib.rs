@@ -12,7 +12,7 @@
 //! * [`setup`]: a checked scene (SI) on the lattice: box, units, gates, liquid;
 //! * [`memory`]: the lattice arrays on huge pages (fewer TLB misses);
 //! * [`real`]: the population float type (f32 default, f64 for comparison);
-//! * [`bench`]: bulk throughput and memory bandwidth measurement;
+//! * [`bench`](mod@bench): bulk throughput and memory bandwidth measurement;
 //! * [`validation`]: the coupling's validation cases (sphere arrays, packed
 //!   beds) against published drag and permeability.
 //!

@@ -52,13 +52,13 @@ fn positive(name: &'static str, value: f64) -> Result<f64, UnitsError> {
 }
 
 impl Units {
-    /// `dx` [m], `dt` [s], `rho0` [kg/m³]; all finite and positive.
+    /// `dx` (m), `dt` (s), `rho0` (kg/m³); all finite and positive.
     pub fn new(dx: f64, dt: f64, rho0: f64) -> Result<Self, UnitsError> {
         Ok(Units { dx: positive("dx", dx)?, dt: positive("dt", dt)?, rho0: positive("rho0", rho0)? })
     }
 
     /// The time step that gives relaxation time `tau` for kinematic viscosity
-    /// `nu` [m²/s] at spacing `dx` [m]: Δt = (τ − ½) Δx²/(3ν).
+    /// `nu` (m²/s) at spacing `dx` (m): Δt = (τ − ½) Δx²/(3ν).
     pub fn dt_for_tau(dx: f64, nu: f64, tau: f64) -> Result<f64, UnitsError> {
         let excess = positive("tau - 1/2", tau - 0.5)?;
         Ok(excess * positive("dx", dx)?.powi(2) / (3.0 * positive("nu", nu)?))

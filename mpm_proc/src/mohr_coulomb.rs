@@ -232,7 +232,7 @@ impl MohrCoulomb {
 
     /// Return only (stress is a trial stress).
     ///
-    /// Pre: finite `stress` [Pa]. Post: on `Elastic` the stress is untouched;
+    /// Pre: finite `stress` (Pa). Post: on `Elastic` the stress is untouched;
     /// otherwise it is the return of the trial onto f = 0 along the plastic
     /// potential (for ψ = φ: the closest point in the energy norm), coaxial
     /// with the trial, and |f| is at rounding level.

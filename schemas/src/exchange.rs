@@ -122,8 +122,8 @@ impl StatePeer for crate::link::LbmLink {
 /// (`/dem/received_loads`, `/lbm/received_states`), little-endian, no
 /// padding: the header as `exchange` u64, `time` f64, `count` u32, `flags`
 /// u32, then `count` records of u32 id and f64 fields in declaration order
-/// (a load: force[3], torque[3], liquid_mass; a state: position[3],
-/// velocity[3], angular_velocity[3], radius). docs/coupling.md "Isolation".
+/// (a load: force (3), torque (3), liquid_mass; a state: position (3),
+/// velocity (3), angular_velocity (3), radius). docs/coupling.md "Isolation".
 pub const RECEIVED_ENCODING: &str = "sgf exchange v1 (little-endian; see docs/coupling.md)";
 
 fn put_header(h: &ExchangeHeader, count: usize, out: &mut Vec<u8>) {

@@ -67,7 +67,7 @@ pub struct MpmTimeStep {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MpmGrid {
     pub element_size: f64,
-    /// domain.min[0] and domain.min[2], m.
+    /// `domain.min[0]` and `domain.min[2]`, m.
     pub origin: [f64; 2],
     pub nx: usize,
     pub nz: usize,

@@ -60,7 +60,7 @@ pub fn progress_line(phase: &str, t: f64, t_end: f64, steps: u64, wall: f64) -> 
 pub struct RunArgs {
     /// Scene file (TOML).
     pub scene: PathBuf,
-    /// Output directory (default: runs/<solver>, e.g. runs/dem).
+    /// Output directory (default: `runs/<solver>`, e.g. `runs/dem`).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Override a scene value, e.g. --set output.end_time=0.2 (repeatable).
