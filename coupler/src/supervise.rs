@@ -16,6 +16,7 @@ use tokio::process::Command;
 use tokio::signal::unix::{signal, SignalKind};
 
 use schemas::scene::Schedule;
+use schemas::summary::RunStatus;
 use schemas::{Method, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
 
 /// The directory holding this executable; solver binaries are its siblings.
@@ -503,9 +504,9 @@ fn finish_summary(
     }
     summary["wall_seconds_total"] = wall_total.into();
     if interrupted {
-        summary["status"] = "interrupted".into();
+        summary["status"] = RunStatus::Interrupted.as_str().into();
     } else if failed {
-        summary["status"] = "failed".into();
+        summary["status"] = RunStatus::Failed.as_str().into();
     }
     let path = out.join("summary.json");
     if let Err(e) = std::fs::write(&path, serde_json::to_string_pretty(&summary).expect("serialises")) {

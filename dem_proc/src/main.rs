@@ -191,7 +191,7 @@ fn main() -> ExitCode {
                         summary.throughput.particle_steps_per_s.unwrap_or(0.0),
                         summary.runout
                     );
-                    finish_run(progress_json, &summary.status)
+                    finish_run(progress_json, summary.status)
                 }
                 Err(RunError::Packing(dem_proc::packing::PackingError::Interrupted)) => {
                     tell!("dem_proc: interrupted during deposition; nothing recorded");

@@ -17,7 +17,7 @@ use schemas::record::{
     Recorder, RecorderBuilder,
 };
 use schemas::scene::Scene;
-use schemas::summary::{DemDetails, ExchangeDetails, RunSummary, Throughput};
+use schemas::summary::{DemDetails, ExchangeDetails, RunStatus, RunSummary, Throughput};
 
 use crate::hydro::{Connect, Flow, HydroExchange};
 use crate::packing::{self, Packing, PackingError};
@@ -280,7 +280,7 @@ pub fn run(
     let started = Instant::now();
     let mut last_frame = (Instant::now(), 0u64);
     let mut last_progress = Instant::now();
-    let mut status = "completed";
+    let mut status = RunStatus::Completed;
     let mut last_recorded_step = 0u64;
     let mut last_state_step = 0u64;
     // Frames in a row that met the rest criterion: one is not enough, a
@@ -318,13 +318,13 @@ pub fn run(
                 match result {
                     Ok(Flow::Continue) => {}
                     Ok(Flow::PeerStopped) => {
-                        status = "peer_stopped";
+                        status = RunStatus::PeerStopped;
                         frames.log(world.time, log_level::WARNING, "lbm_proc stopped; recording the last state")?;
                         break;
                     }
                     // Ctrl-C reaches both processes: waiting for the LBM ends with it.
                     Err(_) if stop.load(Ordering::Relaxed) => {
-                        status = "interrupted";
+                        status = RunStatus::Interrupted;
                         frames.log(
                             world.time,
                             log_level::WARNING,
@@ -333,7 +333,7 @@ pub fn run(
                         break;
                     }
                     Err(source) => {
-                        status = "peer_failed";
+                        status = RunStatus::PeerFailed;
                         frames.log(world.time, log_level::ERROR, &format!("exchange: {source}"))?;
                         failure = Some(RunError::Peer { t: world.time, source });
                         break;
@@ -344,7 +344,7 @@ pub fn run(
         world.step();
         let s = world.step_count;
         if stop.load(Ordering::Relaxed) {
-            status = "interrupted";
+            status = RunStatus::Interrupted;
             frames.log(world.time, log_level::WARNING, "interrupted by signal; recording the last state")?;
             break;
         }
@@ -372,7 +372,7 @@ pub fn run(
             if out.stop_at_rest && has_moved && world.time > last_release && moving <= out.rest_fraction {
                 frames_at_rest += 1;
                 if frames_at_rest >= REST_FRAMES {
-                    status = "at_rest";
+                    status = RunStatus::AtRest;
                     break;
                 }
             } else {
@@ -385,7 +385,7 @@ pub fn run(
         }
     }
     if let (Some(h), Some(p), None) = (hydro.as_mut(), peer.as_deref_mut(), failure.as_ref()) {
-        if status != "peer_stopped" {
+        if status != RunStatus::PeerStopped {
             if let Err(source) = h.finish(&world, p) {
                 frames.log(world.time, log_level::WARNING, &format!("could not tell lbm_proc to stop: {source}"))?;
             }
@@ -412,7 +412,7 @@ pub fn run(
     let summary = RunSummary {
         scene: scene.spec.scene.name.clone(),
         method: if hydro.is_some() { "dem_lbm" } else { "dem" }.into(),
-        status: status.into(),
+        status,
         sim_time: world.time,
         wall_seconds: wall,
         steps: world.step_count,

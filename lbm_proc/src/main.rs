@@ -190,7 +190,7 @@ fn main() -> ExitCode {
                         summary.wall_seconds,
                         summary.throughput.cell_updates_per_s.unwrap_or(0.0) / 1e6,
                     );
-                    finish_run(progress_json, &summary.status)
+                    finish_run(progress_json, summary.status)
                 }
                 Err(e) => {
                     tell!("lbm_proc: error: {e}");

@@ -18,7 +18,7 @@ use schemas::record::{
     RecorderBuilder,
 };
 use schemas::scene::Scene;
-use schemas::summary::{ExchangeDetails, LbmDetails, RunSummary, Throughput};
+use schemas::summary::{ExchangeDetails, LbmDetails, RunStatus, RunSummary, Throughput};
 
 use crate::coupling::{Coupling, CouplingError};
 use crate::fluid::{flags, Fluid, FluidState, Sample};
@@ -205,7 +205,7 @@ pub fn run(
     let mut time = 0.0;
     let mut steps = 0u64;
     let mut cell_updates = 0.0_f64;
-    let mut status = "completed";
+    let mut status = RunStatus::Completed;
     let started = Instant::now();
     let mut last_frame = (Instant::now(), 0.0_f64);
     let mut last_progress = Instant::now();
@@ -240,12 +240,12 @@ pub fn run(
                 Ok(h) => h,
                 // Ctrl-C reaches both processes: waiting for the DEM ends with it.
                 Err(_) if stop.load(Ordering::Relaxed) => {
-                    status = "interrupted";
+                    status = RunStatus::Interrupted;
                     frames.log(time, log_level::WARNING, "interrupted by signal; recording the last state")?;
                     break;
                 }
                 Err(source) => {
-                    status = "peer_failed";
+                    status = RunStatus::PeerFailed;
                     frames.log(time, log_level::ERROR, &format!("exchange {steps}: {source}"))?;
                     failure = Some(RunError::Peer { exchange: steps, source });
                     break;
@@ -274,7 +274,7 @@ pub fn run(
             // The conversions do not change the loads: done while the DEM steps.
             fluid.finish_step();
             if let Err(source) = sent_result {
-                status = "peer_failed";
+                status = RunStatus::PeerFailed;
                 failure = Some(RunError::Peer { exchange: steps, source });
                 break;
             }
@@ -285,7 +285,7 @@ pub fn run(
         time = steps as f64 * dt;
         release_gates(&mut fluid, &setup, &mut gates_removed, time, &mut frames)?;
         if stop.load(Ordering::Relaxed) {
-            status = "interrupted";
+            status = RunStatus::Interrupted;
             frames.log(time, log_level::WARNING, "interrupted by signal; recording the last state")?;
             if let Some(p) = peer.as_deref_mut() {
                 // The DEM may be waiting for this step's load: tell it to stop too.
@@ -298,7 +298,7 @@ pub fn run(
             let mlups = (cell_updates - last_frame.1) / elapsed.max(1e-9) / 1e6;
             last_frame = (Instant::now(), cell_updates);
             if let Err(instability) = fluid.check(&setup.limits) {
-                status = "unstable";
+                status = RunStatus::Unstable;
                 frames.log(time, log_level::ERROR, &instability.to_string())?;
                 failure = Some(RunError::Unstable { t: time, instability: Box::new(instability) });
                 break;
@@ -337,7 +337,7 @@ pub fn run(
     let summary = RunSummary {
         scene: scene.spec.scene.name.clone(),
         method: if forcing.is_some() { "dem_lbm" } else { "lbm" }.into(),
-        status: status.into(),
+        status,
         sim_time: time,
         wall_seconds: wall,
         steps,

@@ -131,7 +131,7 @@ fn main() -> ExitCode {
                         summary.throughput.point_updates_per_s.unwrap_or(0.0),
                         summary.runout
                     );
-                    finish_run(args.progress_json, &summary.status)
+                    finish_run(args.progress_json, summary.status)
                 }
                 Err(e) => {
                     tell!("mpm_proc: error: {e}");

@@ -18,7 +18,7 @@ use schemas::record::{
     RecorderBuilder,
 };
 use schemas::scene::{InitialStress, Scene};
-use schemas::summary::{MpmDetails, RunSummary, Throughput};
+use schemas::summary::{MpmDetails, RunStatus, RunSummary, Throughput};
 
 use crate::setup::{build, MpmSetup, SetupError};
 use crate::solver::{Mpm, MpmState, PointSet};
@@ -290,7 +290,7 @@ fn run_on_pool(
     let steps_per_state = ((out.state_interval.unwrap_or(5.0 * out.record_interval) / dt).round() as u64).max(1);
     let total_steps = (out.end_time / dt).ceil() as u64;
     let points = (mpm.state.solid.set.len() + mpm.state.liquid.set.len()) as f64;
-    let mut status = "completed";
+    let mut status = RunStatus::Completed;
     let mut failure = None;
     let mut rest_frames = 0;
     let mut has_moved = false;
@@ -311,13 +311,13 @@ fn run_on_pool(
         let steps = mpm.state.steps;
         let t = mpm.state.time;
         if stop.load(Ordering::Relaxed) {
-            status = "interrupted";
+            status = RunStatus::Interrupted;
             frames.log(t, log_level::WARNING, "interrupted by signal; recording the last state")?;
             break;
         }
         if steps.is_multiple_of(steps_per_frame) {
             if let Some(what) = watchdog(&mpm, speed_limit) {
-                status = "unstable";
+                status = RunStatus::Unstable;
                 frames.log(t, log_level::ERROR, &what)?;
                 failure = Some(RunError::Unstable { t, what });
                 break;
@@ -336,7 +336,7 @@ fn run_on_pool(
             rest_frames =
                 if released && has_moved && m.moving_fraction <= out.rest_fraction { rest_frames + 1 } else { 0 };
             if out.stop_at_rest && rest_frames >= 3 {
-                status = "at_rest";
+                status = RunStatus::AtRest;
                 frames.log(t, log_level::INFO, "at rest")?;
                 break;
             }
@@ -367,7 +367,7 @@ fn run_on_pool(
     let summary = RunSummary {
         scene: scene.spec.scene.name.clone(),
         method: "mpm".into(),
-        status: status.into(),
+        status,
         sim_time: t,
         wall_seconds: wall,
         steps,

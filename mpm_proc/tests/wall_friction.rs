@@ -10,7 +10,6 @@ use common::Quiet;
 use mpm_proc::run::gravity_phase;
 use mpm_proc::setup::build;
 use mpm_proc::solver::Mpm;
-use schemas::Scene;
 
 const G: f64 = 9.81;
 

@@ -227,11 +227,11 @@ pub fn set_global_threads(solver: &str, threads: Option<usize>) -> Result<(), st
 
 /// The end of a run that wrote its summary: the `done` progress event and
 /// the exit status (130 after an interruption).
-pub fn finish_run(progress_json: bool, status: &str) -> std::process::ExitCode {
+pub fn finish_run(progress_json: bool, status: crate::summary::RunStatus) -> std::process::ExitCode {
     if progress_json {
         say!("{{\"event\":\"done\",\"status\":\"{status}\"}}");
     }
-    if status == "interrupted" {
+    if status == crate::summary::RunStatus::Interrupted {
         std::process::ExitCode::from(crate::EXIT_INTERRUPTED as u8)
     } else {
         std::process::ExitCode::SUCCESS

@@ -5,14 +5,58 @@ use serde::{Deserialize, Serialize};
 
 use crate::measures::FrontSample;
 
+/// How a run ended; written as the snake_case word in `summary.json`, the
+/// progress events and the terminal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RunStatus {
+    /// The scene's end time was reached.
+    Completed,
+    /// Stopped early: the material came to rest (`output.stop_at_rest`).
+    AtRest,
+    /// Stopped by a signal (Ctrl-C, SIGTERM); what was recorded is kept.
+    Interrupted,
+    /// Stopped by the solver's watchdog (a blow-up, named in `/log`).
+    Unstable,
+    /// A process failed (set by `coupler` on the merged summary).
+    Failed,
+    /// In a coupled process's own summary: the peer ended the run (its end
+    /// time, rest, or a stop of its own).
+    PeerStopped,
+    /// In a coupled process's own summary: the exchange with the peer failed.
+    PeerFailed,
+}
+
+impl RunStatus {
+    /// The word `summary.json` holds.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RunStatus::Completed => "completed",
+            RunStatus::AtRest => "at_rest",
+            RunStatus::Interrupted => "interrupted",
+            RunStatus::Unstable => "unstable",
+            RunStatus::Failed => "failed",
+            RunStatus::PeerStopped => "peer_stopped",
+            RunStatus::PeerFailed => "peer_failed",
+        }
+    }
+}
+
+impl std::fmt::Display for RunStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RunSummary {
     /// Scene name.
     pub scene: String,
     /// `dem`, `lbm`, `dem_lbm`, `mpm`.
     pub method: String,
-    /// `completed` (end time reached), `at_rest` (stopped early, at rest), `interrupted`.
-    pub status: String,
+    /// How the run ended (`completed`, `at_rest`, `interrupted`, `unstable`;
+    /// `failed`, `peer_stopped`, `peer_failed` in coupled runs).
+    pub status: RunStatus,
     /// Simulated time reached since the start of the run, s.
     pub sim_time: f64,
     /// Wall time of the solver loop (deposition excluded), s.
@@ -226,4 +270,30 @@ pub struct MpmDetails {
     /// Fraction of the run's wall time spent handing frames to the recorder.
     pub recording_fraction: f64,
     pub threads: usize,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RunStatus;
+
+    /// The words are a public contract (scripts and `coupler` read them):
+    /// serde, `as_str` and `Display` agree, and each reads back.
+    #[test]
+    fn run_status_words_are_the_summary_contract() {
+        let all = [
+            (RunStatus::Completed, "completed"),
+            (RunStatus::AtRest, "at_rest"),
+            (RunStatus::Interrupted, "interrupted"),
+            (RunStatus::Unstable, "unstable"),
+            (RunStatus::Failed, "failed"),
+            (RunStatus::PeerStopped, "peer_stopped"),
+            (RunStatus::PeerFailed, "peer_failed"),
+        ];
+        for (status, word) in all {
+            assert_eq!(serde_json::to_string(&status).unwrap(), format!("\"{word}\""));
+            assert_eq!((status.as_str(), status.to_string()), (word, word.to_string()));
+            assert_eq!(serde_json::from_str::<RunStatus>(&format!("\"{word}\"")).unwrap(), status);
+        }
+        assert!(serde_json::from_str::<RunStatus>("\"done\"").is_err());
+    }
 }

@@ -82,7 +82,7 @@ fn settling_sphere_two_processes_match_in_process_and_terminal_velocity() {
 
     let one = scratch_dir("settling_sphere_in_process");
     let (dem, _) = run_coupled_in_process(scene, &[], &one);
-    assert_eq!(dem.status, "completed");
+    assert_eq!(dem.status, schemas::summary::RunStatus::Completed);
     let (in_process, two_process) = (dem_states(&one.join("dem.mcap")), dem_states(&two.join("run.mcap")));
     assert_eq!(in_process.len(), two_process.len(), "same number of state frames");
     for (a, b) in in_process.iter().zip(&two_process) {
