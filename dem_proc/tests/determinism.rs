@@ -13,48 +13,15 @@ use dem_proc::world::World;
 use schemas::isa::Isa;
 use schemas::Scene;
 
-const SMALL_COLUMN: &str = r#"
-[scene]
-name = "small_column"
-[domain]
-min = [0.0, 0.0, 0.0]
-max = [0.12, 0.012, 0.06]
-gravity = [0.0, 0.0, -9.81]
-walls = ["x_min", "x_max", "y_min", "y_max", "z_min"]
-[[gates]]
-name = "gate"
-point = [0.02, 0.0, 0.0]
-normal = [-1.0, 0.0, 0.0]
-release_time = 0.0
-[[particles]]
-name = "beads"
-density = 2600.0
-diameter = 2.5e-3
-diameter_spread = 0.1
-[particles.packing]
-method = "deposit"
-region = { min = [0.0, 0.0, 0.0], max = [0.02, 0.012, 0.02] }
-count = 250
-seed = 3
-[dem]
-normal_stiffness = 2000.0
-restitution = 0.88
-friction = 0.577
-rolling_friction = 0.05
-[deposition]
-cache = false
-friction = 0.1
-[output]
-end_time = 0.05
-record_interval = 0.01
-[analysis]
-column_length = 0.02
-column_height = 0.02
-condition = "dry"
-"#;
-
+/// `scenes/validation/dem_small_column.toml`: 250 grains behind a gate.
 fn scene() -> Scene {
-    Scene::from_toml_str(SMALL_COLUMN, Path::new("."), &[]).expect("valid scene")
+    scene_with(&[])
+}
+
+fn scene_with(overrides: &[&str]) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/validation/dem_small_column.toml");
+    let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    Scene::load(&path, &overrides).expect("valid scene")
 }
 
 fn collapse_world(scene: &Scene) -> World {
@@ -144,7 +111,7 @@ fn continuing_from_a_recorded_state_is_exact() {
 fn packing_cache_round_trip() {
     let dir = std::env::temp_dir().join(format!("sgf-cache-test-{}", std::process::id()));
     std::env::set_var("SGF_CACHE_DIR", &dir);
-    let scene = Scene::from_toml_str(SMALL_COLUMN, Path::new("."), &["deposition.cache=true".into()]).unwrap();
+    let scene = scene_with(&["deposition.cache=true"]);
     let setup = DemSetup::from_scene(&scene);
     let stop = AtomicBool::new(false);
     let first = packing::build(&scene, &setup, &stop, |_, _| {}).unwrap();
