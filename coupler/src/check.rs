@@ -145,8 +145,8 @@ fn print_dem_lbm(scene: &Scene, warnings: &mut Vec<String>) {
             c.ratio,
             scene.lbm().time_step / c.ratio as f64,
             scene.lbm().time_step,
-            n as f64 * std::mem::size_of::<schemas::exchange::ParticleState>() as f64 / 1e3,
-            n as f64 * std::mem::size_of::<schemas::exchange::HydroLoad>() as f64 / 1e3,
+            n as f64 * std::mem::size_of::<runtime::exchange::ParticleState>() as f64 / 1e3,
+            n as f64 * std::mem::size_of::<runtime::exchange::HydroLoad>() as f64 / 1e3,
         );
         // The coupling resolves grains on the lattice: a few cells per diameter at least.
         let d_min = s.particles.iter().map(|b| b.diameter * (1.0 - b.diameter_spread)).fold(f64::INFINITY, f64::min);

@@ -11,7 +11,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 
-use schemas::record::metadata;
+use schemas::topics::metadata;
 
 /// What went into the merged file.
 #[derive(Debug, Default, Clone)]

@@ -340,7 +340,7 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     }
     bar.finish();
     if coupled {
-        let cleaned = schemas::link::cleanup_stale(Some(&run_id));
+        let cleaned = runtime::link::cleanup_stale(Some(&run_id));
         if cleaned > 0 {
             eprintln!("coupler: removed the shared memory of {cleaned} dead process(es) of run {run_id}");
         }

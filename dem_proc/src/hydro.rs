@@ -14,7 +14,7 @@
 //! measured it (lbm_proc `coupling`, step 6): drag, pressure, buoyancy and
 //! the inertia of the liquid inside the grain, so the DEM adds nothing.
 
-use schemas::exchange::{ExchangeHeader, HydroLoad, LoadPeer, ParticleState, PeerError, FLAG_STOPPING};
+use runtime::exchange::{ExchangeHeader, HydroLoad, LoadPeer, ParticleState, PeerError, FLAG_STOPPING};
 use schemas::scene::{Scene, Schedule};
 
 use crate::world::World;
@@ -137,7 +137,7 @@ impl HydroExchange {
         if self.record_received {
             let mut bytes = Vec::new();
             let loads: &[HydroLoad] = if header.is_stopping() { &[] } else { &self.loads };
-            schemas::exchange::encode_loads(&header, loads, &mut bytes);
+            runtime::exchange::encode_loads(&header, loads, &mut bytes);
             self.received.push((world.time, bytes));
         }
         if header.is_stopping() {

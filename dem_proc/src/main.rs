@@ -8,8 +8,9 @@ use std::time::Instant;
 use clap::{Parser, Subcommand};
 
 use dem_proc::run::{run, Progress, RunError};
-use schemas::process::{finish_run, progress_line, set_global_threads, start_run, RunArgs, RunOptions};
-use schemas::{say, tell, Scene, EXIT_INTERRUPTED};
+use runtime::process::{finish_run, progress_line, set_global_threads, start_run, RunArgs, RunOptions};
+use runtime::{say, tell};
+use schemas::{Scene, EXIT_INTERRUPTED};
 
 #[derive(Parser)]
 #[command(name = "dem_proc", version, about = "3D DEM solver process (spheres, Ceccato et al. 2020 contact law)")]
@@ -77,7 +78,7 @@ impl Progress for Reporter {
 }
 
 fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
-    schemas::process::load_scene("dem_proc", path, set, no_particles)
+    runtime::process::load_scene("dem_proc", path, set, no_particles)
 }
 
 fn no_particles(scene: &Scene) -> Option<&'static str> {
@@ -161,22 +162,22 @@ fn main() -> ExitCode {
             let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs/dem"));
             let opts = RunOptions { out_dir, record: !args.no_record };
             // Coupled: connect once the packing has its grain count.
-            let link = match schemas::process::link_config("dem_proc", &args, &scene, &stop, 0) {
+            let link = match runtime::process::link_config("dem_proc", &args, &scene, &stop, 0) {
                 Ok(l) => l,
                 Err(code) => return code,
             };
             let replay = args.replay_peer.clone().map(|path| {
                 Box::new(move |_grains: usize| {
-                    let peer = schemas::exchange::ReplayLoads::from_recording(&path)?;
-                    Ok(Box::new(peer) as Box<dyn schemas::exchange::LoadPeer>)
+                    let peer = runtime::exchange::ReplayLoads::from_recording(&path)?;
+                    Ok(Box::new(peer) as Box<dyn runtime::exchange::LoadPeer>)
                 }) as dem_proc::hydro::Connect
             });
             let connect: Option<dem_proc::hydro::Connect> = replay.or_else(|| {
                 link.map(|cfg| {
                     Box::new(move |grains: usize| {
-                        let cfg = schemas::link::LinkConfig { particles: grains, ..cfg };
-                        let link = schemas::link::DemLink::connect(&cfg)?;
-                        Ok(Box::new(link) as Box<dyn schemas::exchange::LoadPeer>)
+                        let cfg = runtime::link::LinkConfig { particles: grains, ..cfg };
+                        let link = runtime::link::DemLink::connect(&cfg)?;
+                        Ok(Box::new(link) as Box<dyn runtime::exchange::LoadPeer>)
                     }) as dem_proc::hydro::Connect
                 })
             });

@@ -9,15 +9,16 @@ use std::time::Instant;
 use foxglove::schemas::{Color, Log, PointCloud, Pose, SceneEntity, SceneUpdate, SpherePrimitive, Vector3};
 use serde::{Deserialize, Serialize};
 
-use schemas::measures::{coordination_shares, deposit_profile, front_position, pile_edge, FrontSample};
-use schemas::metrics::{CouplingTimings, DemMetrics};
-use schemas::process::RunOptions;
-use schemas::record::{
-    f32_field, identity_pose, identity_quaternion, log_entry, log_level, timestamp, topics, ChannelId, RecordError,
-    Recorder, RecorderBuilder,
+use runtime::metrics::{CouplingTimings, DemMetrics};
+use runtime::process::RunOptions;
+use runtime::record::{
+    f32_field, identity_pose, identity_quaternion, log_entry, log_level, timestamp, ChannelId, RecordError, Recorder,
+    RecorderBuilder,
 };
+use schemas::measures::{coordination_shares, deposit_profile, front_position, pile_edge, FrontSample};
 use schemas::scene::Scene;
 use schemas::summary::{DemDetails, ExchangeDetails, RunStatus, RunSummary, Throughput};
+use schemas::topics;
 
 use crate::hydro::{Connect, Flow, HydroExchange};
 use crate::packing::{self, Packing, PackingError};
@@ -120,7 +121,7 @@ pub enum RunError {
     #[error("cannot write {path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
     #[error("exchange with lbm_proc failed at t = {t:.5} s: {source}")]
-    Peer { t: f64, source: schemas::exchange::PeerError },
+    Peer { t: f64, source: runtime::exchange::PeerError },
 }
 
 /// How the run reports progress to whoever launched it.
@@ -253,7 +254,7 @@ pub fn run(
             log: b.channel::<Log>(topics::LOG)?,
             coupling: if peer.is_some() { Some(b.channel::<CouplingTimings>(topics::DEM_COUPLING)?) } else { None },
             received: if peer.is_some() && out.record_exchange {
-                let meta = BTreeMap::from([("encoding".to_string(), schemas::exchange::RECEIVED_ENCODING.to_string())]);
+                let meta = BTreeMap::from([("encoding".to_string(), runtime::exchange::RECEIVED_ENCODING.to_string())]);
                 Some(b.raw_channel(topics::DEM_RECEIVED_LOADS, "sgf-exchange", meta)?)
             } else {
                 None

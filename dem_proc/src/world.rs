@@ -32,7 +32,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use schemas::isa::Isa;
+use runtime::isa::Isa;
 
 use crate::lanes::{self, Lanes, Lanes3, LANES};
 use crate::law::{evaluate_lanes, ContactLanes, ContactLaw};

@@ -10,7 +10,7 @@ use dem_proc::rng::SplitMix64;
 use dem_proc::run::DemState;
 use dem_proc::setup::DemSetup;
 use dem_proc::world::World;
-use schemas::isa::Isa;
+use runtime::isa::Isa;
 use schemas::Scene;
 
 /// `scenes/validation/dem_small_column.toml`: 250 grains behind a gate.

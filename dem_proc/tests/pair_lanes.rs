@@ -7,7 +7,7 @@
 use dem_proc::lanes::{self, Lanes, LANES};
 use dem_proc::law::{evaluate, evaluate_lanes, ContactInput, ContactLanes, ContactLaw, OutputLanes};
 use dem_proc::rng::SplitMix64;
-use schemas::isa::Isa;
+use runtime::isa::Isa;
 
 /// The law built for AVX2, as the pair kernel's AVX2 build inlines it.
 #[cfg(target_arch = "x86_64")]

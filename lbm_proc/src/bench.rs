@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use crate::fluid::{Faces, Fluid, FluidParams};
 use crate::lattice::Q;
 use crate::real::Real;
-use schemas::isa::Isa;
+use runtime::isa::Isa;
 
 /// Bytes moved per cell update: 19 populations read + 19 written, 1 flag byte.
 pub fn bytes_per_update<T: Real>() -> usize {

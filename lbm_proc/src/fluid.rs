@@ -33,7 +33,7 @@
 //! pull and the collision, for the listed cells only.
 
 use rayon::prelude::*;
-use schemas::isa::Isa;
+use runtime::isa::Isa;
 
 use crate::memory::{huge_copy, huge_vec};
 use schemas::scene::ForcingGain;

@@ -2,7 +2,7 @@
 //! of an exchange forced in (Eq. 5, [`crate::coupling`]), answered with
 //! each grain's load (docs/coupling.md).
 
-use schemas::exchange::{ExchangeHeader, HydroLoad, ParticleState};
+use runtime::exchange::{ExchangeHeader, HydroLoad, ParticleState};
 
 use crate::coupling::{Coupling, CouplingError, Sphere};
 use crate::fluid::Fluid;

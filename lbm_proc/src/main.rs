@@ -10,8 +10,9 @@ use lbm_proc::bench::{bulk_mlups, bytes_per_update, triad_bandwidth};
 use lbm_proc::fluid::{Collision, FluidParams};
 use lbm_proc::run::{initial_fluid, run, Progress};
 use lbm_proc::setup::LbmSetup;
-use schemas::process::{finish_run, progress_line, start_run, RunArgs, RunOptions};
-use schemas::{say, tell, Scene};
+use runtime::process::{finish_run, progress_line, start_run, RunArgs, RunOptions};
+use runtime::{say, tell};
+use schemas::Scene;
 
 #[derive(Parser)]
 #[command(name = "lbm_proc", version, about = "D3Q19 free-surface lattice Boltzmann solver process")]
@@ -61,7 +62,7 @@ impl Progress for Reporter {
 }
 
 fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
-    schemas::process::load_scene("lbm_proc", path, set, no_fluids)
+    runtime::process::load_scene("lbm_proc", path, set, no_fluids)
 }
 
 fn no_fluids(scene: &Scene) -> Option<&'static str> {
@@ -86,7 +87,7 @@ fn bench(bulk: &[usize], scene: Option<&PathBuf>, set: &[String], steps: u64) ->
     let dims = [bulk[0], bulk[1], bulk[2]];
     let bytes = bytes_per_update::<f32>();
     let scene = scene.map(|p| load_scene(p, set)).transpose()?;
-    let isa = schemas::isa::Isa::detected().map_err(|e| {
+    let isa = runtime::isa::Isa::detected().map_err(|e| {
         tell!("lbm_proc: {e}");
         ExitCode::from(schemas::EXIT_BAD_SCENE as u8)
     })?;
@@ -148,13 +149,13 @@ fn main() -> ExitCode {
             let mut reporter = Reporter { json: progress_json, started: Instant::now() };
             let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs/lbm"));
             let opts = RunOptions { out_dir, record: !args.no_record };
-            let mut link = match schemas::process::link_config("lbm_proc", &args, &scene, &stop, 0) {
+            let mut link = match runtime::process::link_config("lbm_proc", &args, &scene, &stop, 0) {
                 Ok(None) => None,
                 Ok(Some(cfg)) => {
                     tell!("lbm_proc: waiting for dem_proc on run id {} (up to {} s)", cfg.run_id, args.connect_timeout);
-                    match schemas::link::LbmLink::connect(&cfg) {
+                    match runtime::link::LbmLink::connect(&cfg) {
                         Ok(l) => Some(l),
-                        Err(schemas::link::LinkError::Interrupted) => {
+                        Err(runtime::link::LinkError::Interrupted) => {
                             tell!("lbm_proc: interrupted while waiting for dem_proc; nothing recorded");
                             return ExitCode::from(schemas::EXIT_INTERRUPTED as u8);
                         }
@@ -166,7 +167,7 @@ fn main() -> ExitCode {
                 }
                 Err(code) => return code,
             };
-            let mut replay = match args.replay_peer.as_deref().map(schemas::exchange::ReplayStates::from_recording) {
+            let mut replay = match args.replay_peer.as_deref().map(runtime::exchange::ReplayStates::from_recording) {
                 Some(Ok(r)) => Some(r),
                 Some(Err(e)) => {
                     tell!("lbm_proc: error: {e}");
@@ -175,8 +176,8 @@ fn main() -> ExitCode {
                 None => None,
             };
             let peer = match (link.as_mut(), replay.as_mut()) {
-                (Some(l), _) => Some(l as &mut dyn schemas::exchange::StatePeer),
-                (None, Some(r)) => Some(r as &mut dyn schemas::exchange::StatePeer),
+                (Some(l), _) => Some(l as &mut dyn runtime::exchange::StatePeer),
+                (None, Some(r)) => Some(r as &mut dyn runtime::exchange::StatePeer),
                 (None, None) => None,
             };
             match run(&scene, &opts, &stop, &mut reporter, peer) {

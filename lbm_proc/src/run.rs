@@ -9,16 +9,16 @@ use std::time::Instant;
 use foxglove::schemas::{Grid, Log, PointCloud, Pose, Quaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use schemas::exchange::{ExchangeHeader, ParticleState, StatePeer, FLAG_STOPPING};
-use schemas::measures::{front_position, FrontSample};
-use schemas::metrics::{CouplingTimings, LbmMetrics};
-use schemas::process::RunOptions;
-use schemas::record::{
-    f32_field, identity_pose, log_entry, log_level, timestamp, topics, ChannelId, RecordError, Recorder,
-    RecorderBuilder,
+use runtime::exchange::{ExchangeHeader, ParticleState, StatePeer, FLAG_STOPPING};
+use runtime::metrics::{CouplingTimings, LbmMetrics};
+use runtime::process::RunOptions;
+use runtime::record::{
+    f32_field, identity_pose, log_entry, log_level, timestamp, ChannelId, RecordError, Recorder, RecorderBuilder,
 };
+use schemas::measures::{front_position, FrontSample};
 use schemas::scene::Scene;
 use schemas::summary::{ExchangeDetails, LbmDetails, RunStatus, RunSummary, Throughput};
+use schemas::topics;
 
 use crate::coupling::{Coupling, CouplingError};
 use crate::fluid::{flags, Fluid, FluidState, Sample};
@@ -58,7 +58,7 @@ impl LbmState {
         let mut last = None;
         for m in stream {
             let Ok(m) = m else { break };
-            if m.channel.topic == schemas::record::topics::LBM_STATE {
+            if m.channel.topic == schemas::topics::LBM_STATE {
                 last = Some((m.log_time, LbmState::decode(&m.data)?));
             }
         }
@@ -79,7 +79,7 @@ pub enum RunError {
     #[error("grain coupling at exchange {exchange}: {source}")]
     Coupling { exchange: u64, source: CouplingError },
     #[error("exchange with dem_proc failed at step {exchange}: {source}")]
-    Peer { exchange: u64, source: schemas::exchange::PeerError },
+    Peer { exchange: u64, source: runtime::exchange::PeerError },
     #[error("cannot write {path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
 }
@@ -182,7 +182,7 @@ pub fn run(
             log: b.channel::<Log>(topics::LOG)?,
             coupling: if peer.is_some() { Some(b.channel::<CouplingTimings>(topics::LBM_COUPLING)?) } else { None },
             received: if peer.is_some() && scene.spec.output.record_exchange {
-                let meta = BTreeMap::from([("encoding".to_string(), schemas::exchange::RECEIVED_ENCODING.to_string())]);
+                let meta = BTreeMap::from([("encoding".to_string(), runtime::exchange::RECEIVED_ENCODING.to_string())]);
                 Some(b.raw_channel(topics::LBM_RECEIVED_STATES, "sgf-exchange", meta)?)
             } else {
                 None
@@ -258,7 +258,7 @@ pub fn run(
                 let received: &[ParticleState] = if header.is_stopping() { &[] } else { &states };
                 // The recorder takes the buffer: one allocation per recorded exchange.
                 let mut bytes = Vec::new();
-                schemas::exchange::encode_states(&header, received, &mut bytes);
+                runtime::exchange::encode_states(&header, received, &mut bytes);
                 rec.log_bytes(ch, time, bytes)?;
             }
             if header.is_stopping() {

@@ -8,8 +8,9 @@ use std::time::Instant;
 use clap::{Parser, Subcommand};
 
 use mpm_proc::run::{gravity_phase, run, Progress};
-use schemas::process::{finish_run, progress_line, set_global_threads, start_run, RunArgs, RunOptions};
-use schemas::{say, tell, Method, Scene};
+use runtime::process::{finish_run, progress_line, set_global_threads, start_run, RunArgs, RunOptions};
+use runtime::{say, tell};
+use schemas::{Method, Scene};
 
 #[derive(Parser)]
 #[command(name = "mpm_proc", version, about = "2D two-phase double-point MPM solver process (Ceccato et al. 2020)")]
@@ -74,7 +75,7 @@ fn main() -> ExitCode {
     match cli.command {
         Command::Bench { scene, set, steps, threads } => {
             let result = (|| {
-                let scene = schemas::process::load_scene("mpm_proc", &scene, &set, not_mpm)?;
+                let scene = runtime::process::load_scene("mpm_proc", &scene, &set, not_mpm)?;
                 set_global_threads("mpm_proc", threads)?;
                 let mut setup = mpm_proc::setup::build(&scene).map_err(|e| {
                     tell!("mpm_proc: {e}");

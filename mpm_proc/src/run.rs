@@ -10,15 +10,15 @@ use std::time::Instant;
 use foxglove::schemas::{Log, PointCloud};
 use serde::{Deserialize, Serialize};
 
-use schemas::measures::{deposit_profile, front_position, FrontSample};
-use schemas::metrics::MpmMetrics;
-use schemas::process::RunOptions;
-use schemas::record::{
-    f32_field, identity_pose, log_entry, log_level, timestamp, topics, ChannelId, RecordError, Recorder,
-    RecorderBuilder,
+use runtime::metrics::MpmMetrics;
+use runtime::process::RunOptions;
+use runtime::record::{
+    f32_field, identity_pose, log_entry, log_level, timestamp, ChannelId, RecordError, Recorder, RecorderBuilder,
 };
+use schemas::measures::{deposit_profile, front_position, FrontSample};
 use schemas::scene::{InitialStress, Scene};
 use schemas::summary::{MpmDetails, RunStatus, RunSummary, Throughput};
+use schemas::topics;
 
 use crate::setup::{build, MpmSetup, SetupError};
 use crate::solver::{Mpm, MpmState, PointSet};

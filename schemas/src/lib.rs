@@ -1,20 +1,18 @@
-//! Types every process shares: scene files and their validation, the contact
-//! law's closed forms, the MPM's grid, wave speeds and time step, measures
-//! of a collapse, run summaries, and the MCAP recorder with its topic names.
+//! The vocabulary every process shares: scene files and their validation,
+//! the messages the DEM and the LBM exchange, the recordings' topic names,
+//! run summaries and the measures of a collapse. Plain data and pure
+//! functions (serde, toml, thiserror only); the transport, the recorder and
+//! the process handling that use it are the `runtime` crate.
 
 pub mod contact;
 pub mod error;
-pub mod exchange;
-pub mod isa;
-pub mod link;
 pub mod measures;
-pub mod metrics;
+pub mod messages;
 pub mod mpm;
 pub mod overrides;
-pub mod process;
-pub mod record;
 pub mod scene;
 pub mod summary;
+pub mod topics;
 
 pub use error::SceneError;
 pub use scene::{Method, Scene};

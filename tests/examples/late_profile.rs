@@ -18,7 +18,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use schemas::exchange::ExchangeHeader;
+use runtime::exchange::ExchangeHeader;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -29,7 +29,7 @@ fn main() {
     let dir = PathBuf::from(&args[0]);
     let time: f64 = args[1].parse().expect("TIME in seconds");
     let exchanges: u64 = args.get(2).map_or(20, |s| s.parse().expect("EXCHANGES a count"));
-    if schemas::process::set_global_threads("late_profile", None).is_err() {
+    if runtime::process::set_global_threads("late_profile", None).is_err() {
         std::process::exit(1);
     }
     let scene = schemas::Scene::load(&dir.join("scene.toml"), &[]).expect("scene loads");
@@ -42,9 +42,9 @@ fn main() {
         if t > time + 1e-9 {
             continue;
         }
-        if m.channel.topic == schemas::record::topics::DEM_STATE {
+        if m.channel.topic == schemas::topics::DEM_STATE {
             dem_state = Some(dem_proc::run::DemState::decode(&m.data).expect("dem state"));
-        } else if m.channel.topic == schemas::record::topics::LBM_STATE {
+        } else if m.channel.topic == schemas::topics::LBM_STATE {
             lbm_state = Some(lbm_proc::run::LbmState::decode(&m.data).expect("lbm state"));
         }
     }

@@ -130,7 +130,7 @@ impl lbm_proc::run::Progress for Quiet {
 /// The test-only in-process driver: `dem_proc::run::run` and
 /// `lbm_proc::run::run`, the same functions the two binaries call, on two
 /// threads of this process exchanging over in-memory channels
-/// ([`schemas::exchange::memory_pair`]). Writes dem.mcap, lbm.mcap and both
+/// ([`runtime::exchange::memory_pair`]). Writes dem.mcap, lbm.mcap and both
 /// summaries into `out`; returns the DEM's and the LBM's summaries.
 pub fn run_coupled_in_process(
     scene_path: &str,
@@ -138,9 +138,9 @@ pub fn run_coupled_in_process(
     out: &Path,
 ) -> (schemas::summary::RunSummary, schemas::summary::RunSummary) {
     let scene = schemas::Scene::load(&repo_root().join(scene_path), set).expect("scene loads");
-    let opts = schemas::process::RunOptions { out_dir: out.to_path_buf(), record: true };
+    let opts = runtime::process::RunOptions { out_dir: out.to_path_buf(), record: true };
     let stop = std::sync::atomic::AtomicBool::new(false);
-    let (dem_end, lbm_end) = schemas::exchange::memory_pair();
+    let (dem_end, lbm_end) = runtime::exchange::memory_pair();
     std::thread::scope(|s| {
         let lbm = s.spawn(|| {
             let mut end = lbm_end;
@@ -149,7 +149,7 @@ pub fn run_coupled_in_process(
             r
         });
         let connect: dem_proc::hydro::Connect =
-            Box::new(move |_| Ok(Box::new(dem_end) as Box<dyn schemas::exchange::LoadPeer>));
+            Box::new(move |_| Ok(Box::new(dem_end) as Box<dyn runtime::exchange::LoadPeer>));
         let dem = dem_proc::run::run(&scene, &opts, &stop, &mut Quiet, Some(connect));
         let lbm = lbm.join().expect("LBM thread");
         (dem.expect("DEM run"), lbm.expect("LBM run"))
@@ -162,7 +162,7 @@ pub fn dem_states(mcap_path: &Path) -> Vec<dem_proc::run::DemState> {
     let mut out = Vec::new();
     for msg in mcap::MessageStream::new(&bytes).expect("mcap") {
         let msg = msg.expect("message");
-        if msg.channel.topic == schemas::record::topics::DEM_STATE {
+        if msg.channel.topic == schemas::topics::DEM_STATE {
             out.push(dem_proc::run::DemState::decode(&msg.data).expect("state decodes"));
         }
     }

@@ -4,7 +4,7 @@
 use integration_tests::{
     binary, coupler_run, dem_states, repo_root, run_coupled_in_process, scratch_dir, topic_messages,
 };
-use schemas::record::topics;
+use schemas::topics;
 
 /// Terminal velocity of a sphere in a closed box, first-order reflections:
 /// Stokes drag 3πμDU times the Schiller–Naumann factor 1 + 0.15 Re^0.687,
@@ -303,7 +303,7 @@ fn replaying_the_recorded_peer_reproduces_each_process() {
         let lag = usize::from(schedule == "concurrent");
         assert_eq!(received.len() + 1 + lag, topic_messages(&run_mcap, topics::LBM_RECEIVED_STATES).len());
         assert!(received.len() >= 239, "{} exchanges recorded", received.len());
-        let (h, loads) = schemas::exchange::decode_loads(&received[100]).unwrap();
+        let (h, loads) = runtime::exchange::decode_loads(&received[100]).unwrap();
         assert_eq!((h.exchange, loads.len()), (100, 1));
         assert!(loads[0].force[2] > 0.0, "the liquid holds the sphere up: {:?}", loads[0].force);
 

@@ -27,7 +27,7 @@ fn start_long_coupled_run(name: &str) -> (Child, PathBuf) {
         assert!(started.elapsed() < Duration::from_secs(60), "coupled run never started");
         std::thread::sleep(Duration::from_millis(100));
     }
-    // Past the first chunk flush (schemas::record::FLUSH_EVERY = 2 s): a
+    // Past the first chunk flush (runtime::record::FLUSH_EVERY = 2 s): a
     // process killed later loses at most its last 2 s of recording.
     std::thread::sleep(Duration::from_millis(3500));
     (child, out)

@@ -25,16 +25,16 @@ use integration_tests::{coupler_run, repo_root};
 
 /// The topics whose every byte is fixed by the scene: states and exchanges.
 const HASHED_TOPICS: &[&str] = &[
-    schemas::record::topics::DEM_STATE,
-    schemas::record::topics::DEM_PARTICLES,
-    schemas::record::topics::DEM_RECEIVED_LOADS,
-    schemas::record::topics::LBM_RECEIVED_STATES,
-    schemas::record::topics::LBM_STATE,
-    schemas::record::topics::LBM_SURFACE,
-    schemas::record::topics::LBM_SLICE,
-    schemas::record::topics::MPM_SOLID,
-    schemas::record::topics::MPM_LIQUID,
-    schemas::record::topics::MPM_STATE,
+    schemas::topics::DEM_STATE,
+    schemas::topics::DEM_PARTICLES,
+    schemas::topics::DEM_RECEIVED_LOADS,
+    schemas::topics::LBM_RECEIVED_STATES,
+    schemas::topics::LBM_STATE,
+    schemas::topics::LBM_SURFACE,
+    schemas::topics::LBM_SLICE,
+    schemas::topics::MPM_SOLID,
+    schemas::topics::MPM_LIQUID,
+    schemas::topics::MPM_STATE,
 ];
 
 /// (run, recording file name, topic) → "count:hash".

@@ -20,9 +20,9 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use schemas::exchange::{decode_loads, decode_states, HydroLoad, ParticleState};
-use schemas::link::{DemLink, ExchangeHeader, LbmLink, LinkConfig, LinkError};
-use schemas::record::topics;
+use runtime::exchange::{decode_loads, decode_states, HydroLoad, ParticleState};
+use runtime::link::{DemLink, ExchangeHeader, LbmLink, LinkConfig, LinkError};
+use schemas::topics;
 
 struct Args {
     role: String,
@@ -56,7 +56,7 @@ fn parse() -> Result<Args, String> {
 }
 
 fn messages(path: &std::path::Path, topic: &str) -> Result<Vec<Vec<u8>>, String> {
-    schemas::exchange::recorded_messages(path, topic).map_err(|e| e.to_string())
+    runtime::exchange::recorded_messages(path, topic).map_err(|e| e.to_string())
 }
 
 fn same_header(a: &ExchangeHeader, b: &ExchangeHeader) -> bool {
@@ -65,7 +65,7 @@ fn same_header(a: &ExchangeHeader, b: &ExchangeHeader) -> bool {
 
 fn play(args: &Args) -> Result<String, String> {
     let scene = schemas::Scene::load(&args.scene, &args.set).map_err(|e| e.to_string())?;
-    let hash = schemas::process::scene_hash(&scene);
+    let hash = runtime::process::scene_hash(&scene);
     let err = |e: LinkError| e.to_string();
     let loads: Vec<(ExchangeHeader, Vec<HydroLoad>)> = messages(&args.recording, topics::DEM_RECEIVED_LOADS)?
         .iter()

@@ -52,83 +52,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 
-/// Version of the messages and of the exchange sequence. Bump it (and the
-/// `.vN` type names) whenever a message layout or the order of calls changes.
-pub const PROTOCOL_VERSION: u32 = 1;
-
-/// [`ExchangeHeader::flags`] bit: the sender stops after this message (end of
-/// run, or interrupted). A stopping message with `count == 0` carries no data.
-pub const FLAG_STOPPING: u32 = 1;
-
-/// DEM → LBM, one per grain, SI units, f64.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("sgf.ParticleState.v1")]
-pub struct ParticleState {
-    /// Grain id (index in the DEM's particle array).
-    pub id: u32,
-    /// Explicit padding so the layout has no hidden bytes.
-    pub _pad: u32,
-    /// Centre, m.
-    pub position: [f64; 3],
-    /// Centre velocity, m/s.
-    pub velocity: [f64; 3],
-    /// Angular velocity, rad/s.
-    pub angular_velocity: [f64; 3],
-    /// Radius, m.
-    pub radius: f64,
-}
-
-/// LBM → DEM, one per grain, SI units.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("sgf.HydroLoad.v1")]
-pub struct HydroLoad {
-    /// Grain id, as received in [`ParticleState::id`].
-    pub id: u32,
-    /// Explicit padding so the layout has no hidden bytes.
-    pub _pad: u32,
-    /// Hydrodynamic force, N: the momentum flux through the grain's surface
-    /// (drag, pressure, buoyancy and the inertia of the liquid inside it).
-    pub force: [f64; 3],
-    /// Hydrodynamic torque about the centre, N m.
-    pub torque: [f64; 3],
-    /// Liquid mass covered by the grain, kg (ρ_L times its wetted volume).
-    pub liquid_mass: f64,
-}
-
-/// User header of every exchange message.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("sgf.ExchangeHeader.v1")]
-pub struct ExchangeHeader {
-    /// Exchange index n, 0-based.
-    pub exchange: u64,
-    /// Simulated time t_n, s.
-    pub time: f64,
-    /// Number of entries in the slice (set by the send functions).
-    pub count: u32,
-    /// Bit 0 ([`FLAG_STOPPING`]): the sender stops after this message.
-    pub flags: u32,
-}
-
-impl ExchangeHeader {
-    /// Header of exchange `exchange` at simulated time `time` (s).
-    pub fn new(exchange: u64, time: f64) -> Self {
-        Self { exchange, time, count: 0, flags: 0 }
-    }
-
-    /// The same header with [`FLAG_STOPPING`] set (the last message of a run).
-    pub fn stopping(mut self) -> Self {
-        self.flags |= FLAG_STOPPING;
-        self
-    }
-
-    /// True if the sender stops after this message.
-    pub fn is_stopping(&self) -> bool {
-        self.flags & FLAG_STOPPING != 0
-    }
-}
+pub use schemas::messages::{ExchangeHeader, HydroLoad, ParticleState, FLAG_STOPPING, PROTOCOL_VERSION};
 
 /// Handshake message on `sgf/<run_id>/hello`.
 ///
@@ -142,7 +66,7 @@ pub struct Hello {
     pub protocol_version: u32,
     /// 1 = DEM, 2 = LBM.
     pub role: u32,
-    /// [`crate::stable_hash`] of the scene as run (after `--set` overrides).
+    /// [`schemas::stable_hash`] of the scene as run (after `--set` overrides).
     pub scene_hash: u64,
     /// Number of grains the sender exchanges per message.
     pub particles: u64,
@@ -209,7 +133,7 @@ impl std::fmt::Display for Role {
 pub struct LinkConfig {
     /// Namespace of every service and node: 1–40 characters of `[A-Za-z0-9_-]`.
     pub run_id: String,
-    /// [`crate::stable_hash`] of the scene as run; both sides must agree.
+    /// [`schemas::stable_hash`] of the scene as run; both sides must agree.
     pub scene_hash: u64,
     /// Grains per message, both directions: every message sent or received
     /// has exactly this many (the shared-memory slices are sized for it).
@@ -315,8 +239,58 @@ fn others_hint(others: &[String]) -> String {
     }
 }
 
+/// A vocabulary message's versioned type name on the wire (iceoryx2
+/// refuses to connect a publisher and a subscriber whose names differ).
+pub trait WireName: Debug + Copy + 'static {
+    /// `sgf.<Type>.v<N>`; bump with [`PROTOCOL_VERSION`].
+    const TYPE_NAME: &'static str;
+}
+
+impl WireName for ParticleState {
+    const TYPE_NAME: &'static str = "sgf.ParticleState.v1";
+}
+
+impl WireName for HydroLoad {
+    const TYPE_NAME: &'static str = "sgf.HydroLoad.v1";
+}
+
+impl WireName for ExchangeHeader {
+    const TYPE_NAME: &'static str = "sgf.ExchangeHeader.v1";
+}
+
+/// A vocabulary message ([`schemas::messages`]) as it lies in shared
+/// memory: the same bytes, under iceoryx2's marker trait, which the
+/// vocabulary crate does not depend on.
+#[repr(transparent)]
+#[derive(Debug, Clone, Copy, Default)]
+struct Wire<T>(T);
+
+// SAFETY: `Wire<T>` has `T`'s layout (`repr(transparent)`), and every
+// `WireName` type is `repr(C)` plain data (u32, u64, f64 and arrays of
+// them, padding explicit): no pointers, nothing process-local, the same
+// bytes in both processes of one build; the handshake refuses a peer of
+// another build ([`PROTOCOL_VERSION`]).
+unsafe impl<T: WireName> ZeroCopySend for Wire<T> {
+    unsafe fn type_name() -> &'static str {
+        T::TYPE_NAME
+    }
+}
+
+impl<T> Wire<T> {
+    fn wrap_slice(data: &[T]) -> &[Wire<T>] {
+        // SAFETY: `Wire<T>` is `repr(transparent)` over `T`: same size,
+        // alignment and validity, so the slice reinterprets exactly.
+        unsafe { std::slice::from_raw_parts(data.as_ptr().cast::<Wire<T>>(), data.len()) }
+    }
+
+    fn unwrap_slice(data: &[Wire<T>]) -> &[T] {
+        // SAFETY: as in `wrap_slice`.
+        unsafe { std::slice::from_raw_parts(data.as_ptr().cast::<T>(), data.len()) }
+    }
+}
+
 /// Message types that travel over the link, with the names of their services.
-pub trait Message: Debug + Copy + ZeroCopySend + 'static {
+pub trait Message: WireName {
     /// Last segment of the data service name.
     const SERVICE: &'static str;
     /// Last segment of the wake-up event service name.
@@ -363,8 +337,8 @@ pub struct Link<Out: Message, In: Message> {
     stop: Option<Arc<AtomicBool>>,
     peer_node: u128,
     peer_pid: u32,
-    publisher: Publisher<Ipc, [Out], ExchangeHeader>,
-    subscriber: Subscriber<Ipc, [In], ExchangeHeader>,
+    publisher: Publisher<Ipc, [Wire<Out>], Wire<ExchangeHeader>>,
+    subscriber: Subscriber<Ipc, [Wire<In>], Wire<ExchangeHeader>>,
     notifier: Notifier<Ipc>,
     listener: Listener<Ipc>,
     // Dropped last: ports are released before their node.
@@ -744,7 +718,7 @@ impl<Out: Message, In: Message> Link<Out, In> {
         node: &Node<Ipc>,
         run_id: &str,
         particles: usize,
-    ) -> Result<(Publisher<Ipc, [Out], ExchangeHeader>, Notifier<Ipc>), LinkError> {
+    ) -> Result<(Publisher<Ipc, [Wire<Out>], Wire<ExchangeHeader>>, Notifier<Ipc>), LinkError> {
         let service = data_service::<Out>(node, run_id)?;
         let publisher = service
             .publisher_builder()
@@ -767,7 +741,7 @@ impl<Out: Message, In: Message> Link<Out, In> {
     fn open_in(
         node: &Node<Ipc>,
         run_id: &str,
-    ) -> Result<(Subscriber<Ipc, [In], ExchangeHeader>, Listener<Ipc>), LinkError> {
+    ) -> Result<(Subscriber<Ipc, [Wire<In>], Wire<ExchangeHeader>>, Listener<Ipc>), LinkError> {
         let service = data_service::<In>(node, run_id)?;
         let subscriber = service
             .subscriber_builder()
@@ -797,8 +771,8 @@ impl<Out: Message, In: Message> Link<Out, In> {
         header.count = data.len() as u32;
         let sent = (|| {
             let mut sample = self.publisher.loan_slice_uninit(data.len()).map_err(transport("loaning a slice"))?;
-            *sample.user_header_mut() = header;
-            let sample = sample.write_from_slice(data);
+            *sample.user_header_mut() = Wire(header);
+            let sample = sample.write_from_slice(Wire::wrap_slice(data));
             sample.send().map_err(transport("sending a message"))?;
             self.notifier.notify().map_err(transport("waking the peer"))?;
             Ok(())
@@ -848,8 +822,8 @@ impl<Out: Message, In: Message> Link<Out, In> {
         let Some(sample) = self.subscriber.receive().map_err(transport("receiving a message"))? else {
             return Ok(None);
         };
-        let h = *sample.user_header();
-        let payload = sample.payload();
+        let h = sample.user_header().0;
+        let payload = Wire::unwrap_slice(sample.payload());
         let peer = self.role.peer();
         if h.is_stopping() && payload.is_empty() {
             return Err(LinkError::PeerStopped { role: peer, exchange: expect });
@@ -953,10 +927,13 @@ fn check_hello(cfg: &LinkConfig, role: Role, h: &Hello) -> Result<(), LinkError>
 fn data_service<T: Message>(
     node: &Node<Ipc>,
     run_id: &str,
-) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, [T], ExchangeHeader>, LinkError> {
+) -> Result<
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, [Wire<T>], Wire<ExchangeHeader>>,
+    LinkError,
+> {
     node.service_builder(&service_name(run_id, T::SERVICE)?)
-        .publish_subscribe::<[T]>()
-        .user_header::<ExchangeHeader>()
+        .publish_subscribe::<[Wire<T>]>()
+        .user_header::<Wire<ExchangeHeader>>()
         .history_size(0)
         .subscriber_max_buffer_size(DATA_BUFFER)
         .subscriber_max_borrowed_samples(1)

@@ -8,7 +8,10 @@
 //! The same messages in the same order reach the solver in every case, so
 //! the transport cannot change a result.
 
-pub use crate::link::{ExchangeHeader, HydroLoad, ParticleState, FLAG_STOPPING};
+pub use schemas::messages::{
+    decode_loads, decode_states, encode_loads, encode_states, ExchangeHeader, HydroLoad, ParticleState, FLAG_STOPPING,
+    RECEIVED_ENCODING,
+};
 
 /// Why an exchange failed; the message names the cause and the fix.
 pub type PeerError = Box<dyn std::error::Error + Send + Sync>;
@@ -118,124 +121,6 @@ impl StatePeer for crate::link::LbmLink {
     }
 }
 
-/// Encoding of one received exchange message for the recording
-/// (`/dem/received_loads`, `/lbm/received_states`), little-endian, no
-/// padding: the header as `exchange` u64, `time` f64, `count` u32, `flags`
-/// u32, then `count` records of u32 id and f64 fields in declaration order
-/// (a load: force (3), torque (3), liquid_mass; a state: position (3),
-/// velocity (3), angular_velocity (3), radius). docs/coupling.md "Isolation".
-pub const RECEIVED_ENCODING: &str = "sgf exchange v1 (little-endian; see docs/coupling.md)";
-
-fn put_header(h: &ExchangeHeader, count: usize, out: &mut Vec<u8>) {
-    out.extend_from_slice(&h.exchange.to_le_bytes());
-    out.extend_from_slice(&h.time.to_le_bytes());
-    out.extend_from_slice(&(count as u32).to_le_bytes());
-    out.extend_from_slice(&h.flags.to_le_bytes());
-}
-
-fn put_f64s(values: &[f64], out: &mut Vec<u8>) {
-    for v in values {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-}
-
-/// Reads little-endian fields off a message, with the message's name in errors.
-struct Cursor<'a> {
-    bytes: &'a [u8],
-    at: usize,
-    what: &'static str,
-}
-
-impl Cursor<'_> {
-    fn take<const N: usize>(&mut self) -> Result<[u8; N], PeerError> {
-        let end = self.at + N;
-        let b = self.bytes.get(self.at..end).ok_or_else(|| {
-            PeerError::from(format!("{}: message truncated at byte {} of {}", self.what, self.at, self.bytes.len()))
-        })?;
-        self.at = end;
-        Ok(b.try_into().expect("slice of N bytes"))
-    }
-    fn u32(&mut self) -> Result<u32, PeerError> {
-        Ok(u32::from_le_bytes(self.take()?))
-    }
-    fn u64(&mut self) -> Result<u64, PeerError> {
-        Ok(u64::from_le_bytes(self.take()?))
-    }
-    fn f64(&mut self) -> Result<f64, PeerError> {
-        Ok(f64::from_le_bytes(self.take()?))
-    }
-    fn vec3(&mut self) -> Result<[f64; 3], PeerError> {
-        Ok([self.f64()?, self.f64()?, self.f64()?])
-    }
-    fn header(&mut self) -> Result<ExchangeHeader, PeerError> {
-        Ok(ExchangeHeader { exchange: self.u64()?, time: self.f64()?, count: self.u32()?, flags: self.u32()? })
-    }
-    fn end(&self) -> Result<(), PeerError> {
-        if self.at != self.bytes.len() {
-            return Err(
-                format!("{}: {} bytes left over after the last record", self.what, self.bytes.len() - self.at).into()
-            );
-        }
-        Ok(())
-    }
-}
-
-/// Encodes received loads (see [`RECEIVED_ENCODING`]).
-pub fn encode_loads(header: &ExchangeHeader, loads: &[HydroLoad], out: &mut Vec<u8>) {
-    out.clear();
-    put_header(header, loads.len(), out);
-    for l in loads {
-        out.extend_from_slice(&l.id.to_le_bytes());
-        put_f64s(&l.force, out);
-        put_f64s(&l.torque, out);
-        put_f64s(&[l.liquid_mass], out);
-    }
-}
-
-/// Decodes a message of [`encode_loads`].
-pub fn decode_loads(bytes: &[u8]) -> Result<(ExchangeHeader, Vec<HydroLoad>), PeerError> {
-    let mut c = Cursor { bytes, at: 0, what: "received loads" };
-    let header = c.header()?;
-    let mut loads = Vec::with_capacity(header.count as usize);
-    for _ in 0..header.count {
-        loads.push(HydroLoad { id: c.u32()?, _pad: 0, force: c.vec3()?, torque: c.vec3()?, liquid_mass: c.f64()? });
-    }
-    c.end()?;
-    Ok((header, loads))
-}
-
-/// Encodes received grain states (see [`RECEIVED_ENCODING`]).
-pub fn encode_states(header: &ExchangeHeader, states: &[ParticleState], out: &mut Vec<u8>) {
-    out.clear();
-    put_header(header, states.len(), out);
-    for s in states {
-        out.extend_from_slice(&s.id.to_le_bytes());
-        put_f64s(&s.position, out);
-        put_f64s(&s.velocity, out);
-        put_f64s(&s.angular_velocity, out);
-        put_f64s(&[s.radius], out);
-    }
-}
-
-/// Decodes a message of [`encode_states`].
-pub fn decode_states(bytes: &[u8]) -> Result<(ExchangeHeader, Vec<ParticleState>), PeerError> {
-    let mut c = Cursor { bytes, at: 0, what: "received states" };
-    let header = c.header()?;
-    let mut states = Vec::with_capacity(header.count as usize);
-    for _ in 0..header.count {
-        states.push(ParticleState {
-            id: c.u32()?,
-            _pad: 0,
-            position: c.vec3()?,
-            velocity: c.vec3()?,
-            angular_velocity: c.vec3()?,
-            radius: c.f64()?,
-        });
-    }
-    c.end()?;
-    Ok((header, states))
-}
-
 /// The messages of `topic` in a recording, in log order; an error naming
 /// the override that records them when there are none.
 pub fn recorded_messages(path: &std::path::Path, topic: &str) -> Result<Vec<Vec<u8>>, PeerError> {
@@ -281,7 +166,7 @@ pub struct ReplayLoads {
 
 impl ReplayLoads {
     pub fn from_recording(path: &std::path::Path) -> Result<Self, PeerError> {
-        Ok(ReplayLoads { messages: recorded_messages(path, crate::record::topics::DEM_RECEIVED_LOADS)?.into_iter() })
+        Ok(ReplayLoads { messages: recorded_messages(path, schemas::topics::DEM_RECEIVED_LOADS)?.into_iter() })
     }
 }
 
@@ -309,7 +194,7 @@ pub struct ReplayStates {
 
 impl ReplayStates {
     pub fn from_recording(path: &std::path::Path) -> Result<Self, PeerError> {
-        Ok(ReplayStates { messages: recorded_messages(path, crate::record::topics::LBM_RECEIVED_STATES)?.into_iter() })
+        Ok(ReplayStates { messages: recorded_messages(path, schemas::topics::LBM_RECEIVED_STATES)?.into_iter() })
     }
 }
 
@@ -325,44 +210,5 @@ impl StatePeer for ReplayStates {
     }
     fn send_loads(&mut self, _header: ExchangeHeader, _loads: &[HydroLoad]) -> Result<(), PeerError> {
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn received_messages_round_trip_exactly() {
-        let header = ExchangeHeader { exchange: 7, time: 5.6e-4, count: 2, flags: FLAG_STOPPING };
-        let loads = [
-            HydroLoad {
-                id: 0,
-                _pad: 0,
-                force: [1e-3, -2.5e-7, f64::MIN_POSITIVE],
-                torque: [0.0, -0.0, 3.0],
-                liquid_mass: 1.4e-5,
-            },
-            HydroLoad { id: 1, _pad: 0, force: [0.1, 0.2, 0.3], torque: [4.0, 5.0, 6.0], liquid_mass: 0.0 },
-        ];
-        let mut bytes = Vec::new();
-        encode_loads(&header, &loads, &mut bytes);
-        assert_eq!(bytes.len(), 24 + 2 * 60);
-        let (h, l) = decode_loads(&bytes).unwrap();
-        assert_eq!((h, l.as_slice()), (header, &loads[..]));
-        let states = [ParticleState {
-            id: 3,
-            _pad: 0,
-            position: [0.1, 0.2, 0.3],
-            velocity: [1.0, 2.0, 3.0],
-            angular_velocity: [-1.0, 0.0, 1e300],
-            radius: 1.25e-3,
-        }];
-        encode_states(&ExchangeHeader { count: 1, ..header }, &states, &mut bytes);
-        let (h, s) = decode_states(&bytes).unwrap();
-        assert_eq!((h.exchange, s.as_slice()), (7, &states[..]));
-        // A cut message is an error naming what was cut, not a panic.
-        let err = decode_states(&bytes[..bytes.len() - 3]).unwrap_err().to_string();
-        assert!(err.contains("received states: message truncated"), "{err}");
     }
 }

@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant};
 
-use schemas::link::{DemLink, ExchangeHeader, HydroLoad, LbmLink, LinkConfig, LinkError, ParticleState};
+use runtime::link::{DemLink, ExchangeHeader, HydroLoad, LbmLink, LinkConfig, LinkError, ParticleState};
 
 fn arg(args: &[String], name: &str, default: u64) -> Result<u64, String> {
     match args.iter().position(|a| a == name) {

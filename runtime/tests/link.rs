@@ -8,7 +8,7 @@ use std::sync::{mpsc, Arc};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use schemas::link::*;
+use runtime::link::*;
 
 /// Counts heap allocations per thread, to check the exchange path makes none of its own.
 struct CountingAlloc;

@@ -101,12 +101,12 @@ pub struct RunArgs {
 pub fn link_config(
     solver: &str,
     args: &RunArgs,
-    scene: &crate::Scene,
+    scene: &schemas::Scene,
     stop: &Arc<AtomicBool>,
     particles: usize,
 ) -> Result<Option<crate::link::LinkConfig>, std::process::ExitCode> {
-    let bad = || std::process::ExitCode::from(crate::EXIT_BAD_SCENE as u8);
-    let coupled = scene.method() == crate::Method::DemLbm;
+    let bad = || std::process::ExitCode::from(schemas::EXIT_BAD_SCENE as u8);
+    let coupled = scene.method() == schemas::Method::DemLbm;
     if args.replay_peer.is_some() {
         if !coupled {
             tell!(
@@ -148,8 +148,8 @@ pub fn link_config(
 }
 
 /// Hash of the scene as run (after overrides): both coupled processes must agree on it.
-pub fn scene_hash(scene: &crate::Scene) -> u64 {
-    crate::stable_hash(scene.to_toml().as_bytes())
+pub fn scene_hash(scene: &schemas::Scene) -> u64 {
+    schemas::stable_hash(scene.to_toml().as_bytes())
 }
 
 /// Options of a run that are not part of the physics.
@@ -166,10 +166,10 @@ pub fn load_scene(
     solver: &str,
     path: &std::path::Path,
     set: &[String],
-    unfit: impl Fn(&crate::Scene) -> Option<&'static str>,
-) -> Result<crate::Scene, std::process::ExitCode> {
-    let bad = || std::process::ExitCode::from(crate::EXIT_BAD_SCENE as u8);
-    let scene = crate::Scene::load(path, set).map_err(|e| {
+    unfit: impl Fn(&schemas::Scene) -> Option<&'static str>,
+) -> Result<schemas::Scene, std::process::ExitCode> {
+    let bad = || std::process::ExitCode::from(schemas::EXIT_BAD_SCENE as u8);
+    let scene = schemas::Scene::load(path, set).map_err(|e| {
         tell!("{solver}: invalid scene {}:\n{e}", path.display());
         bad()
     })?;
@@ -185,8 +185,8 @@ pub fn load_scene(
 pub fn start_run(
     solver: &str,
     args: &RunArgs,
-    unfit: impl Fn(&crate::Scene) -> Option<&'static str>,
-) -> Result<(Arc<AtomicBool>, crate::Scene), std::process::ExitCode> {
+    unfit: impl Fn(&schemas::Scene) -> Option<&'static str>,
+) -> Result<(Arc<AtomicBool>, schemas::Scene), std::process::ExitCode> {
     let stop = stop_flag().map_err(|e| {
         tell!("{solver}: cannot install signal handler: {e}");
         std::process::ExitCode::FAILURE
@@ -210,7 +210,7 @@ pub fn start_run(
 pub fn set_global_threads(solver: &str, threads: Option<usize>) -> Result<(), std::process::ExitCode> {
     if let Err(e) = crate::isa::Isa::detected() {
         tell!("{solver}: {e}");
-        return Err(std::process::ExitCode::from(crate::EXIT_BAD_SCENE as u8));
+        return Err(std::process::ExitCode::from(schemas::EXIT_BAD_SCENE as u8));
     }
     let mut builder = rayon::ThreadPoolBuilder::new().use_current_thread();
     if let Some(n) = threads {
@@ -227,12 +227,12 @@ pub fn set_global_threads(solver: &str, threads: Option<usize>) -> Result<(), st
 
 /// The end of a run that wrote its summary: the `done` progress event and
 /// the exit status (130 after an interruption).
-pub fn finish_run(progress_json: bool, status: crate::summary::RunStatus) -> std::process::ExitCode {
+pub fn finish_run(progress_json: bool, status: schemas::summary::RunStatus) -> std::process::ExitCode {
     if progress_json {
         say!("{{\"event\":\"done\",\"status\":\"{status}\"}}");
     }
-    if status == crate::summary::RunStatus::Interrupted {
-        std::process::ExitCode::from(crate::EXIT_INTERRUPTED as u8)
+    if status == schemas::summary::RunStatus::Interrupted {
+        std::process::ExitCode::from(schemas::EXIT_INTERRUPTED as u8)
     } else {
         std::process::ExitCode::SUCCESS
     }
