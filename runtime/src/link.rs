@@ -923,14 +923,12 @@ fn check_hello(cfg: &LinkConfig, role: Role, h: &Hello) -> Result<(), LinkError>
     Ok(())
 }
 
+/// The service factory of `T`'s slices behind an exchange header.
+type DataService<T> =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, [Wire<T>], Wire<ExchangeHeader>>;
+
 /// The slice service for `T`; both sides open it with the same settings.
-fn data_service<T: Message>(
-    node: &Node<Ipc>,
-    run_id: &str,
-) -> Result<
-    iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, [Wire<T>], Wire<ExchangeHeader>>,
-    LinkError,
-> {
+fn data_service<T: Message>(node: &Node<Ipc>, run_id: &str) -> Result<DataService<T>, LinkError> {
     node.service_builder(&service_name(run_id, T::SERVICE)?)
         .publish_subscribe::<[Wire<T>]>()
         .user_header::<Wire<ExchangeHeader>>()
