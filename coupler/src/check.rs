@@ -1,6 +1,6 @@
 //! `coupler check`: what a run of the scene will be, without running it.
 
-use schemas::mpm;
+use mpm_proc::plan::{self as mpm, SceneMpm};
 use schemas::scene::{Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmTransfer, PackingSpec, Scene};
 use schemas::Method;
 
@@ -178,7 +178,7 @@ fn print_dem_lbm(scene: &Scene, warnings: &mut Vec<String>) {
                 println!("hydrostatics buoyancy: the liquid feels no gravity; each grain's load gets -rho_L V g")
             }
         }
-        let half = c.forcing_gain.gain(0.5, tau0);
+        let half = lbm_proc::fluid::forcing_gain(c.forcing_gain, 0.5, tau0);
         println!(
             "forcing      {} gain: a half-covered cell is pulled {half:.3} of the way to the grain per step (tau0 = {tau0:.6})",
             c.forcing_gain.name()
@@ -211,7 +211,7 @@ const MPM_BYTES_PER_POINT: f64 = 500.0;
 const MPM_BYTES_PER_NODE_PHASE: f64 = 200.0;
 
 /// The MPM: grid, points, waves and Δt, soil model, drag, gravity phase.
-/// Computed from the scene alone (`schemas::mpm`), not from `mpm_proc`.
+/// Computed from the scene by `mpm_proc::plan`, the closed forms the solver itself uses.
 fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
     let s = &scene.spec;
     let m = scene.mpm();

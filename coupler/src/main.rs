@@ -75,10 +75,17 @@ fn overrides(method: Option<String>, set: Vec<String>) -> Vec<String> {
 }
 
 fn load(scene: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
-    Scene::load(scene, set).map_err(|e| {
+    let bad = |e: schemas::SceneError| {
         eprintln!("coupler: invalid scene {}:\n{e}", scene.display());
         ExitCode::from(EXIT_BAD_SCENE as u8)
-    })
+    };
+    let loaded = Scene::load(scene, set).map_err(bad)?;
+    // What a solver refuses beyond the vocabulary's checks, before any
+    // process starts: the same words the solver would exit with.
+    if matches!(loaded.method(), schemas::Method::DemDry | schemas::Method::DemLbm) {
+        dem_proc::setup::check_scene(&loaded).map_err(bad)?;
+    }
+    Ok(loaded)
 }
 
 fn main() -> ExitCode {

@@ -72,6 +72,36 @@ fn bad_scene_exits_2_naming_the_key() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("cannot read scene file"));
 }
 
+/// The no-tension spring-dashpot rebounds at no less than e = 0.136 (at
+/// critical damping, dem_proc::contact): a lower restitution is refused by
+/// `coupler` and by `dem_proc` alone, with the same words.
+#[test]
+fn restitution_below_the_critically_damped_rebound_is_refused_by_coupler_and_dem_proc() {
+    let set = ["--set", "dem.restitution=0.1"];
+    let out = coupler().args(["check", "scenes/ceccato2020/dry_h060.toml"]).args(set).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let want = "dem.restitution: a linear spring-dashpot that never pulls cannot rebound slower than e = 0.136 (at critical damping), got 0.1";
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(want), "{err}");
+    let dem = std::path::Path::new(env!("CARGO_BIN_EXE_coupler")).with_file_name("dem_proc");
+    if dem.exists() {
+        let out = Command::new(dem)
+            .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+            .args(["run", "scenes/ceccato2020/dry_h060.toml", "--out", "/nonexistent/never-written"])
+            .args(set)
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(want), "{err}");
+    }
+    let out = coupler()
+        .args(["check", "scenes/ceccato2020/dry_h060.toml", "--set", "dem.restitution=0.14"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
 #[test]
 fn inspect_rejects_a_file_that_is_not_mcap() {
     let path = std::env::temp_dir().join(format!("not-mcap-{}.mcap", std::process::id()));

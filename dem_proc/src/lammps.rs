@@ -14,7 +14,7 @@
 
 use std::fmt::Write as _;
 
-use schemas::contact::effective_mass;
+use crate::contact::effective_mass;
 use schemas::scene::Scene;
 
 use crate::setup::DemSetup;

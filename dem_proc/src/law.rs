@@ -3,7 +3,7 @@
 //!
 //! * Normal (Eq. 1): F_n = k_n δ + c_n δ̇ with c_n = 2ζ√(k_n m*), clamped at
 //!   zero (never attractive). ζ is derived from the restitution e so that the
-//!   clamped law rebounds with exactly e ([`schemas::contact::damping_ratio_no_tension`]).
+//!   clamped law rebounds with exactly e ([`crate::contact::damping_ratio_no_tension`]).
 //! * Tangential (Eq. 2): history spring ξ (k_t = ratio·k_n) plus dashpot
 //!   c_t = 2ζ√(k_t m*), capped by Coulomb μ_s F_n (the paper prints `max`; the
 //!   physical law is the cap). While sliding the spring is truncated so that
@@ -131,7 +131,7 @@ pub fn evaluate(law: &ContactLaw, c: &ContactInput, dt: f64, spring: &mut Vec3) 
 
 /// The damping ratio for restitution `e` under this law's no-tension clamp.
 pub fn damping_ratio_for(e: f64) -> f64 {
-    schemas::contact::damping_ratio_no_tension(e)
+    crate::contact::damping_ratio_no_tension(e)
 }
 
 /// [`ContactInput`] of [`LANES`] contacts, field by field.

@@ -81,13 +81,8 @@ fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode>
     runtime::process::load_scene("dem_proc", path, set, no_particles)
 }
 
-fn no_particles(scene: &Scene) -> Option<&'static str> {
-    if scene.method() == schemas::Method::Mpm {
-        return Some("the scene selects the MPM (scene.method = \"mpm\"): run it with `coupler run` or mpm_proc");
-    }
-    scene.spec.particles.is_empty().then_some(
-        "the scene has no [[particles]] blocks; nothing for the DEM to do (fluid-only scenes run in lbm_proc)",
-    )
+fn no_particles(scene: &Scene) -> Option<String> {
+    dem_proc::setup::check_scene(scene).err().map(|e| e.to_string())
 }
 
 /// The packing of a scene and the world ready to collapse.

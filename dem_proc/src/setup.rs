@@ -1,8 +1,9 @@
 //! From a checked [`Scene`] to the solver's laws, walls and time step.
 
-use schemas::contact::{contact_duration, effective_mass};
+use crate::contact::{contact_duration, effective_mass, min_restitution_no_tension};
 use schemas::scene::{Face, Scene};
 use schemas::Method;
+use schemas::SceneError;
 
 use crate::law::{damping_ratio_for, ContactLaw};
 use crate::world::{Numerics, Wall};
@@ -19,6 +20,37 @@ pub struct DemSetup {
     pub domain: ([f64; 3], [f64; 3]),
     pub gravity: [f64; 3],
     pub max_diameter: f64,
+}
+
+/// What the DEM refuses in a scene that the vocabulary's checks let pass:
+/// a scene with no grains, one that selects the MPM, and a restitution below
+/// what a spring–dashpot that never pulls can reach (its rebound at
+/// critical damping, [`min_restitution_no_tension`]). `dem_proc` and
+/// `coupler` both call it, so the two refuse with the same words.
+pub fn check_scene(scene: &Scene) -> Result<(), SceneError> {
+    if scene.method() == Method::Mpm {
+        return Err(SceneError::new(
+            "scene.method",
+            "the scene selects the MPM (scene.method = \"mpm\"): run it with `coupler run` or mpm_proc",
+        ));
+    }
+    if scene.spec.particles.is_empty() {
+        return Err(SceneError::new(
+            "particles",
+            "the scene has no [[particles]] blocks; nothing for the DEM to do (fluid-only scenes run in lbm_proc)",
+        ));
+    }
+    let e = scene.spec.dem.as_ref().map_or(1.0, |d| d.restitution);
+    let e_min = min_restitution_no_tension();
+    if e > 0.0 && e < e_min {
+        return Err(SceneError::new(
+            "dem.restitution",
+            format!(
+                "a linear spring-dashpot that never pulls cannot rebound slower than e = {e_min:.3} (at critical damping), got {e}"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Mass of the lightest grain any block can produce, kg.

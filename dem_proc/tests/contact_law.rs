@@ -1,9 +1,9 @@
 //! Analytic checks of the contact law on one or two grains
 //! (`shared/reference/analytic-checks.md`).
 
+use dem_proc::contact::{contact_time_no_tension_scaled, damping_ratio_no_tension, restitution_no_tension};
 use dem_proc::law::ContactLaw;
 use dem_proc::world::{Grains, Numerics, Wall, World};
-use schemas::contact::{contact_time_no_tension_scaled, damping_ratio_no_tension, restitution_no_tension};
 
 /// The lab grain: D = 2.5 mm, ρ = 2625 kg/m³ (analytic-checks.md).
 const R: f64 = 1.25e-3;
@@ -106,7 +106,7 @@ fn restitution_at_production_time_step() {
     let (e_meas, _, _) = impact(0.88, false, 25.0);
     assert!((e_meas - 0.88).abs() < 0.02 * 0.88, "{e_meas}");
     // The no-tension law with the textbook ζ would rebound harder than asked:
-    let zeta_textbook = schemas::contact::damping_ratio_overlap(0.88);
+    let zeta_textbook = dem_proc::contact::damping_ratio_overlap(0.88);
     let e_textbook = restitution_no_tension(zeta_textbook);
     assert!(e_textbook > 0.881, "{e_textbook}");
 }

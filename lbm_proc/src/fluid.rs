@@ -46,7 +46,7 @@ use crate::watchdog::{Instability, Quantity, WatchdogLimits};
 
 mod forcing;
 mod free_surface;
-pub use forcing::{AppliedForce, ForcedCell};
+pub use forcing::{forcing_gain, uses_effective_tau, AppliedForce, ForcedCell};
 pub use free_surface::{InterfaceCell, Sample};
 
 /// Cell flags. Liquid cells (fluid, interface) have bit 0 clear, so the
@@ -1274,8 +1274,8 @@ impl<T: Real> Kernel<'_, T> {
     ) -> AppliedForce {
         let fill = if self.flags[cell.cell] == flags::INTERFACE { self.fill[cell.cell].clamp(0.0, 1.0) } else { 1.0 };
         let w = cell.weight * fill;
-        let tau = if self.gain.uses_effective_tau() && w < 1.0 { self.effective_tau(f, l) } else { self.tau0 };
-        let b = self.gain.gain(w, tau);
+        let tau = if forcing::uses_effective_tau(self.gain) && w < 1.0 { self.effective_tau(f, l) } else { self.tau0 };
+        let b = forcing::forcing_gain(self.gain, w, tau);
         let j = m.j;
         let rho = 1.0 + m.drho;
         let force: [f64; 3] = std::array::from_fn(|a| b * (2.0 * (rho * cell.target[a] - j[a]) - rho * self.accel[a]));

@@ -65,15 +65,15 @@ fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode>
     runtime::process::load_scene("lbm_proc", path, set, no_fluids)
 }
 
-fn no_fluids(scene: &Scene) -> Option<&'static str> {
+fn no_fluids(scene: &Scene) -> Option<String> {
     if scene.method() == schemas::Method::Mpm {
-        return Some("the scene selects the MPM (scene.method = \"mpm\"): run it with `coupler run` or mpm_proc");
+        return Some(
+            "the scene selects the MPM (scene.method = \"mpm\"): run it with `coupler run` or mpm_proc".into(),
+        );
     }
-    scene
-        .spec
-        .fluids
-        .is_empty()
-        .then_some("the scene has no [[fluids]] blocks; nothing for the LBM to do (grain-only scenes run in dem_proc)")
+    scene.spec.fluids.is_empty().then(|| {
+        "the scene has no [[fluids]] blocks; nothing for the LBM to do (grain-only scenes run in dem_proc)".into()
+    })
 }
 
 fn pool(threads: usize) -> Result<rayon::ThreadPool, ExitCode> {

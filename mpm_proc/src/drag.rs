@@ -75,7 +75,7 @@ impl DragLaw {
     /// (0.05, 0.95) so κ stays finite (Anura3D caps at 0.95).
     /// Post: finite and > 0 for any finite `porosity` (NaN propagates).
     pub fn permeability(&self, porosity: f64) -> f64 {
-        schemas::mpm::permeability(self.grain_diameter, clamp_skeleton(porosity), self.ergun_a)
+        crate::plan::permeability(self.grain_diameter, clamp_skeleton(porosity), self.ergun_a)
     }
 
     /// Non-Darcy (Forchheimer) coefficient β = B / √(κ A n³), 1/m (Eq. 8),

@@ -64,10 +64,11 @@ impl Progress for Reporter {
     }
 }
 
-fn not_mpm(scene: &Scene) -> Option<&'static str> {
-    (scene.method() != Method::Mpm).then_some(
-        "the scene does not select the MPM: set `method = \"mpm\"` in [scene], or run `coupler run --method mpm SCENE`",
-    )
+fn not_mpm(scene: &Scene) -> Option<String> {
+    (scene.method() != Method::Mpm).then(|| {
+        "the scene does not select the MPM: set `method = \"mpm\"` in [scene], or run `coupler run --method mpm SCENE`"
+            .into()
+    })
 }
 
 fn main() -> ExitCode {

@@ -10,6 +10,7 @@ use std::time::Instant;
 use foxglove::schemas::{Log, PointCloud};
 use serde::{Deserialize, Serialize};
 
+use crate::plan::SceneMpm;
 use runtime::metrics::MpmMetrics;
 use runtime::process::RunOptions;
 use runtime::record::{

@@ -3,6 +3,7 @@
 //! gates, and the initial stresses (docs/mpm.md, "Gravity phase and
 //! initial stresses").
 
+use crate::plan::SceneMpm;
 use schemas::scene::{Face, InitialStress, MpmFloor, PackingSpec, Scene};
 
 use crate::drag::DragLaw;

@@ -166,7 +166,7 @@ pub fn load_scene(
     solver: &str,
     path: &std::path::Path,
     set: &[String],
-    unfit: impl Fn(&schemas::Scene) -> Option<&'static str>,
+    unfit: impl Fn(&schemas::Scene) -> Option<String>,
 ) -> Result<schemas::Scene, std::process::ExitCode> {
     let bad = || std::process::ExitCode::from(schemas::EXIT_BAD_SCENE as u8);
     let scene = schemas::Scene::load(path, set).map_err(|e| {
@@ -185,7 +185,7 @@ pub fn load_scene(
 pub fn start_run(
     solver: &str,
     args: &RunArgs,
-    unfit: impl Fn(&schemas::Scene) -> Option<&'static str>,
+    unfit: impl Fn(&schemas::Scene) -> Option<String>,
 ) -> Result<(Arc<AtomicBool>, schemas::Scene), std::process::ExitCode> {
     let stop = stop_flag().map_err(|e| {
         tell!("{solver}: cannot install signal handler: {e}");

@@ -4,11 +4,9 @@
 //! functions (serde, toml, thiserror only); the transport, the recorder and
 //! the process handling that use it are the `runtime` crate.
 
-pub mod contact;
 pub mod error;
 pub mod measures;
 pub mod messages;
-pub mod mpm;
 pub mod overrides;
 pub mod scene;
 pub mod summary;

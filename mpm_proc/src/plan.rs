@@ -1,4 +1,4 @@
-//! Closed forms of the two-phase double-point MPM that `mpm_proc` and
+//! The MPM's plan of a scene, the closed forms that `mpm_proc` and
 //! `coupler check` share: the background grid, the wave speeds and the
 //! CFL time step, the soil's elastic and Mohr–Coulomb constants, and the
 //! Ergun drag at the initial porosity (paper Eqs. 7–9, 12;
@@ -8,9 +8,10 @@
 //! `packing.porosity` n0, `packing.region`), the liquid the first fluid
 //! block (density ρ_L, viscosity μ, region); numerics and the soil model come
 //! from [`Scene::mpm`]. Meant for scenes validated as `mpm`; on others the
-//! missing pieces come out as `None` or NaN.
+//! missing pieces come out as `None` or NaN. [`SceneMpm`] adds them to a
+//! [`Scene`] as methods.
 
-use crate::scene::{PackingSpec, Scene};
+use schemas::scene::{PackingSpec, Scene};
 
 /// The wave that limits the MPM time step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -136,10 +137,24 @@ pub fn permeability(diameter: f64, porosity: f64, ergun_a: f64) -> f64 {
     diameter * diameter * porosity * porosity * porosity / (ergun_a * solid * solid)
 }
 
-impl Scene {
+/// The MPM's reading of a scene: grid, porosity, time step, drag.
+pub trait SceneMpm {
     /// n0 of the MPM soil: `particles[0].packing.porosity` (None without a
     /// soil block or with a `count` packing).
-    pub fn mpm_porosity(&self) -> Option<f64> {
+    fn mpm_porosity(&self) -> Option<f64>;
+    /// The MPM background grid over the x–z section of the domain.
+    fn mpm_grid(&self) -> MpmGrid;
+    /// The wave speeds of the MPM scene and the CFL step from them.
+    fn mpm_time_step(&self) -> MpmTimeStep;
+    /// The Ergun drag at n0 and Re_p of Eq. 12; None unless the scene has
+    /// both a soil and a liquid.
+    fn mpm_drag(&self) -> Option<MpmDrag>;
+}
+
+impl SceneMpm for Scene {
+    /// n0 of the MPM soil: `particles[0].packing.porosity` (None without a
+    /// soil block or with a `count` packing).
+    fn mpm_porosity(&self) -> Option<f64> {
         match &self.spec.particles.first()?.packing {
             PackingSpec::Deposit { porosity, .. } => *porosity,
             PackingSpec::Explicit { .. } => None,
@@ -147,7 +162,7 @@ impl Scene {
     }
 
     /// The MPM background grid over the x–z section of the domain.
-    pub fn mpm_grid(&self) -> MpmGrid {
+    fn mpm_grid(&self) -> MpmGrid {
         let h = self.mpm().element_size;
         let d = &self.spec.domain;
         let n = |a: usize| ((d.max[a] - d.min[a]) / h).round().max(0.0) as usize;
@@ -158,7 +173,7 @@ impl Scene {
     /// c_u = √((E_oed + K_L/n0)/ρ_sat) with soil and liquid, c_L = √(K_L/ρ_L)
     /// with liquid, c_d = √(E_oed/((1 − n0)ρ_s)) with soil;
     /// Δt = courant · element_size / max(c).
-    pub fn mpm_time_step(&self) -> MpmTimeStep {
+    fn mpm_time_step(&self) -> MpmTimeStep {
         let m = self.mpm();
         let e_oed = oedometric_modulus(m.young_modulus, m.poisson_ratio);
         let k_l = m.liquid_bulk_modulus;
@@ -209,7 +224,7 @@ impl Scene {
 
     /// The Ergun drag at n0 and Re_p of Eq. 12; None unless the scene has
     /// both a soil and a liquid.
-    pub fn mpm_drag(&self) -> Option<MpmDrag> {
+    fn mpm_drag(&self) -> Option<MpmDrag> {
         let m = self.mpm();
         let soil = self.spec.particles.first()?;
         let liquid = self.spec.fluids.first()?;

@@ -1,5 +1,6 @@
-//! Closed forms of the linear spring–dashpot contact (paper Eq. 1), shared by
-//! the DEM solver (to derive its damping) and `coupler check` (to report it).
+//! Closed forms of the linear spring–dashpot contact (paper Eq. 1): the
+//! solver derives its damping from them, [`crate::setup::check_scene`]
+//! refuses a restitution the law cannot reach, `coupler check` reports them.
 //!
 //! Normal force F = k δ + c δ̇ with c = 2ζ√(k m*). Two end-of-contact criteria
 //! exist (see `shared/reference/analytic-checks.md`):
