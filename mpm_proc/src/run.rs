@@ -11,14 +11,13 @@ use foxglove::schemas::{Log, PointCloud};
 use serde::{Deserialize, Serialize};
 
 use crate::plan::SceneMpm;
+use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
 use runtime::metrics::MpmMetrics;
 use runtime::process::RunOptions;
-use runtime::record::{
-    f32_field, identity_pose, log_entry, log_level, timestamp, ChannelId, RecordError, Recorder, RecorderBuilder,
-};
+use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError, RecorderBuilder};
 use schemas::measures::{deposit_profile, front_position, FrontSample};
 use schemas::scene::{InitialStress, Scene};
-use schemas::summary::{MpmDetails, RunStatus, RunSummary, Throughput};
+use schemas::summary::{MpmDetails, RunSummary, Throughput};
 use schemas::topics;
 
 use crate::setup::{build, MpmSetup, SetupError};
@@ -143,13 +142,11 @@ struct Channels {
     liquid: ChannelId,
     metrics: ChannelId,
     state: ChannelId,
-    log: ChannelId,
 }
 
-struct Frames {
-    recorder: Option<Recorder>,
-    channels: Option<Channels>,
-    seconds: f64,
+/// What the frames gather over the run for the summary.
+#[derive(Default)]
+struct Gathered {
     scratch: Vec<(f64, f64)>,
     front: Vec<FrontSample>,
     liquid_front: Vec<FrontSample>,
@@ -158,15 +155,6 @@ struct Frames {
     max_fluidised: f64,
     max_pore_pressure: f64,
     peak_pore_pressure: f64,
-}
-
-impl Frames {
-    fn log(&mut self, t: f64, level: i32, message: &str) -> Result<(), RecordError> {
-        if let (Some(r), Some(c)) = (self.recorder.as_mut(), self.channels.as_ref()) {
-            r.log(c.log, t, &log_entry(t, level, "mpm_proc", message))?;
-        }
-        Ok(())
-    }
 }
 
 /// Measures of one frame.
@@ -222,6 +210,25 @@ pub fn run(
     rayon::scope(|_| run_on_pool(scene, opts, stop, progress))
 }
 
+/// The MPM as the run driver steps it, with what its frames and summary need.
+struct MpmRun<'a> {
+    scene: &'a Scene,
+    mpm: Mpm,
+    gates: Vec<(String, f64)>,
+    channels: Option<Channels>,
+    gathered: Gathered,
+    gravity: GravityPhase,
+    porosity_initial: f64,
+    soil_top: f64,
+    solid_mass0: f64,
+    liquid_mass0: f64,
+    points: f64,
+    /// Half the fastest wave speed, m/s: a point faster has left the physics.
+    speed_limit: f64,
+    /// The section lies at mid-width of the flume, so it overlays a DEM–LBM run.
+    mid_width: f32,
+}
+
 fn run_on_pool(
     scene: &Scene,
     opts: &RunOptions,
@@ -232,27 +239,10 @@ fn run_on_pool(
     for n in &notes {
         progress.log(n);
     }
-    let t_ref = scene.reference_time();
     let out = &scene.spec.output;
-    let an = &scene.spec.analysis;
-    let x0 = scene.spec.domain.min[0];
-    let l0 = an.column_length;
-
     std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
     let (mcap_path, summary_path) = output_paths(&opts.out_dir);
-    let mut frames = Frames {
-        recorder: None,
-        channels: None,
-        seconds: 0.0,
-        scratch: Vec::new(),
-        front: Vec::new(),
-        liquid_front: Vec::new(),
-        max_kinetic_energy: 0.0,
-        max_fluidised: 0.0,
-        max_pore_pressure: 0.0,
-        peak_pore_pressure: 0.0,
-    };
-    if opts.record {
+    let (mut rec, channels) = if opts.record {
         let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
         let meta = BTreeMap::from([(
             "encoding".to_string(),
@@ -263,98 +253,119 @@ fn run_on_pool(
             liquid: b.channel::<PointCloud>(topics::MPM_LIQUID)?,
             metrics: b.channel::<MpmMetrics>(topics::MPM_METRICS)?,
             state: b.raw_channel(topics::MPM_STATE, "bincode", meta)?,
-            log: b.channel::<Log>(topics::LOG)?,
         };
-        let mut rec = b.start(16);
-        rec.scene(scene.to_toml())?;
-        frames.recorder = Some(rec);
-        frames.channels = Some(channels);
-    }
+        let log = b.channel::<Log>(topics::LOG)?;
+        let mut recorder = b.start(16);
+        recorder.scene(scene.to_toml())?;
+        (Recording::on(recorder, log, "mpm_proc"), Some(channels))
+    } else {
+        (Recording::off("mpm_proc"), None)
+    };
     for n in &notes {
-        frames.log(0.0, log_level::INFO, n)?;
+        rec.log(0.0, log_level::INFO, n)?;
     }
 
-    let gp = gravity_phase(scene, &mut mpm, stop, progress);
-    if gp.steps > 0 {
+    let gravity = gravity_phase(scene, &mut mpm, stop, progress);
+    if gravity.steps > 0 {
         let msg = format!(
             "gravity phase: {} steps ({:.4} s simulated, {:.1} s wall), fastest point {:.2e} m/s at its end",
-            gp.steps, gp.time, gp.wall_seconds, gp.max_speed
+            gravity.steps, gravity.time, gravity.wall_seconds, gravity.max_speed
         );
         progress.log(&msg);
-        frames.log(0.0, log_level::INFO, &msg)?;
+        rec.log(0.0, log_level::INFO, &msg)?;
     }
-    let solid_mass0 = mpm.state.solid.set.total_mass();
-    let liquid_mass0 = mpm.state.liquid.set.total_mass();
-
     let dt = mpm.params.dt;
-    let steps_per_frame = ((out.record_interval / dt).round() as u64).max(1);
-    let steps_per_state = ((out.state_interval.unwrap_or(5.0 * out.record_interval) / dt).round() as u64).max(1);
-    let total_steps = (out.end_time / dt).ceil() as u64;
-    let points = (mpm.state.solid.set.len() + mpm.state.liquid.set.len()) as f64;
-    let mut status = RunStatus::Completed;
-    let mut failure = None;
-    let mut rest_frames = 0;
-    let mut has_moved = false;
-    let mut last_frame = Instant::now();
-    let mut last_progress = Instant::now();
-    let started = Instant::now();
-    let fraction = an.front_mass_fraction;
-    let speed_limit = 0.5 * scene.mpm_time_step().max_speed;
-    // The section lies at mid-width of the flume, so it overlays a DEM–LBM run.
-    let mid_width = (0.5 * (scene.spec.domain.min[1] + scene.spec.domain.max[1])) as f32;
-    release_gates(&mut mpm, &gates, &mut frames)?;
+    let cadence = Cadence {
+        steps_per_frame: Cadence::steps_in(out.record_interval, dt),
+        steps_per_state: Some(Cadence::steps_in(out.state_interval.unwrap_or(5.0 * out.record_interval), dt)),
+        step_limit: (out.end_time / dt).ceil() as u64,
+        state_at_start: true,
+    };
+    release_gates(&mut mpm, &gates, &mut rec)?;
     mpm.take_pore_pressure_peak(); // the gravity phase's are not the collapse's
-    record_frame(&mut frames, &mut mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, 0.0)?;
-    record_state(&mut frames, &mpm)?;
-    while mpm.state.steps < total_steps {
-        mpm.step();
-        release_gates(&mut mpm, &gates, &mut frames)?;
-        let steps = mpm.state.steps;
-        let t = mpm.state.time;
-        if stop.load(Ordering::Relaxed) {
-            status = RunStatus::Interrupted;
-            frames.log(t, log_level::WARNING, "interrupted by signal; recording the last state")?;
-            break;
-        }
-        if steps.is_multiple_of(steps_per_frame) {
-            if let Some(what) = watchdog(&mpm, speed_limit) {
-                status = RunStatus::Unstable;
-                frames.log(t, log_level::ERROR, &what)?;
-                failure = Some(RunError::Unstable { t, what });
-                break;
-            }
-            let rate = steps_per_frame as f64 * points / last_frame.elapsed().as_secs_f64().max(1e-9);
-            last_frame = Instant::now();
-            let m = record_frame(&mut frames, &mut mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, rate)?;
-            if steps.is_multiple_of(steps_per_state) {
-                record_state(&mut frames, &mpm)?;
-            }
-            let released = mpm.state.gates_held.iter().all(|h| !h);
-            // Only a column that has moved can come to rest: frames closer
-            // than the release's first motion would otherwise stop the run
-            // at t ≈ 0 (record_interval = 2e-5 s stopped after 6 steps).
-            has_moved |= m.moving_fraction > out.rest_fraction;
-            rest_frames =
-                if released && has_moved && m.moving_fraction <= out.rest_fraction { rest_frames + 1 } else { 0 };
-            if out.stop_at_rest && rest_frames >= 3 {
-                status = RunStatus::AtRest;
-                frames.log(t, log_level::INFO, "at rest")?;
-                break;
-            }
-        }
-        if last_progress.elapsed().as_secs_f64() > 0.5 {
-            progress.collapse(t, out.end_time, steps);
-            last_progress = Instant::now();
-        }
-    }
-    let wall = started.elapsed().as_secs_f64();
-    let (t, steps) = (mpm.state.time, mpm.state.steps);
-    progress.collapse(t, out.end_time, steps);
-    if !steps.is_multiple_of(steps_per_frame) && failure.is_none() {
-        record_frame(&mut frames, &mut mpm, mid_width, t_ref, x0, l0, fraction, out.rest_speed, 0.0)?;
-    }
-    record_state(&mut frames, &mpm)?;
+    let mut solver = MpmRun {
+        scene,
+        solid_mass0: mpm.state.solid.set.total_mass(),
+        liquid_mass0: mpm.state.liquid.set.total_mass(),
+        points: (mpm.state.solid.set.len() + mpm.state.liquid.set.len()) as f64,
+        speed_limit: 0.5 * scene.mpm_time_step().max_speed,
+        mid_width: (0.5 * (scene.spec.domain.min[1] + scene.spec.domain.max[1])) as f32,
+        mpm,
+        gates,
+        channels,
+        gathered: Gathered::default(),
+        gravity,
+        porosity_initial,
+        soil_top,
+    };
+    let end_time = out.end_time;
+    drive(
+        &mut solver,
+        &mut rec,
+        cadence,
+        RestRule::of(out),
+        stop,
+        &mut |t, steps| progress.collapse(t, end_time, steps),
+        &summary_path,
+    )
+}
 
+impl Solver for MpmRun<'_> {
+    type Error = RunError;
+
+    fn time(&self) -> f64 {
+        self.mpm.state.time
+    }
+
+    fn steps(&self) -> u64 {
+        self.mpm.state.steps
+    }
+
+    fn work_per_step(&self) -> f64 {
+        self.points
+    }
+
+    fn step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
+        self.mpm.step();
+        release_gates(&mut self.mpm, &self.gates, rec)?;
+        Ok(Flow::Continue)
+    }
+
+    fn check(&self) -> Result<(), RunError> {
+        match watchdog(&self.mpm, self.speed_limit) {
+            Some(what) => Err(RunError::Unstable { t: self.mpm.state.time, what }),
+            None => Ok(()),
+        }
+    }
+
+    fn record_frame(&mut self, rec: &mut Recording, clock: FrameClock) -> Result<FrameReport, RunError> {
+        let m = record_frame(self, rec, clock.rate)?;
+        let released = self.mpm.state.gates_held.iter().all(|h| !h);
+        Ok(FrameReport { moving_fraction: Some(m.moving_fraction), released })
+    }
+
+    fn record_state(&mut self, rec: &mut Recording) -> Result<(), RunError> {
+        if let (Some(r), Some(ch)) = (rec.recorder(), self.channels.as_ref()) {
+            r.log_bytes(ch.state, self.mpm.state.time, MpmStateRecord::encode_state(&self.mpm.state))?;
+        }
+        Ok(())
+    }
+
+    fn summary(&mut self, end: &RunEnd) -> RunSummary {
+        summary(self, end)
+    }
+
+    fn cannot_write(path: &Path, source: std::io::Error) -> RunError {
+        RunError::Io { path: path.to_path_buf(), source }
+    }
+}
+
+/// The run's summary: the fronts, the deposit, the MPM's details.
+fn summary(r: &mut MpmRun<'_>, end: &RunEnd) -> RunSummary {
+    let (scene, mpm) = (r.scene, &r.mpm);
+    let an = &scene.spec.analysis;
+    let x0 = scene.spec.domain.min[0];
+    let (t, steps, wall) = (mpm.state.time, mpm.state.steps, end.wall);
     let s = &mpm.state.solid;
     let bin = an.deposit_bin.unwrap_or(mpm.grid.h);
     let half_z = s.set.half[1];
@@ -364,30 +375,31 @@ fn run_on_pool(
         bin,
         ((scene.spec.domain.max[0] - x0) / bin).ceil() as usize + 1,
     );
-    let runout = frames.front.last().map(|f| f.x_norm).unwrap_or(f64::NAN);
-    let summary = RunSummary {
+    let g = &r.gathered;
+    let runout = g.front.last().map(|f| f.x_norm).unwrap_or(f64::NAN);
+    RunSummary {
         scene: scene.spec.scene.name.clone(),
         method: "mpm".into(),
-        status,
+        status: end.status,
         sim_time: t,
         wall_seconds: wall,
         steps,
         throughput: Throughput {
             particle_steps_per_s: None,
             cell_updates_per_s: None,
-            point_updates_per_s: Some(points * steps as f64 / wall.max(1e-9)),
+            point_updates_per_s: Some(r.points * steps as f64 / wall.max(1e-9)),
             wall_per_sim_second: wall / t.max(1e-12),
         },
-        t_ref,
-        front: if s.set.is_empty() { Vec::new() } else { frames.front.clone() },
+        t_ref: scene.reference_time(),
+        front: if s.set.is_empty() { Vec::new() } else { g.front.clone() },
         runout: if s.set.is_empty() { f64::NAN } else { runout },
         front_connected: Vec::new(),
         runout_connected: None,
         front_pile: Vec::new(),
         runout_pile: None,
         deposit: if s.set.is_empty() { Vec::new() } else { deposit },
-        porosity_initial,
-        liquid_front: frames.liquid_front.clone(),
+        porosity_initial: r.porosity_initial,
+        liquid_front: g.liquid_front.clone(),
         dem: None,
         lbm: None,
         mpm: Some(MpmDetails {
@@ -396,36 +408,26 @@ fn run_on_pool(
             shape_functions: format!("{:?}", mpm.grid.shape).to_lowercase(),
             solid_points: s.set.len(),
             liquid_points: mpm.state.liquid.set.len(),
-            time_step: dt,
-            gravity_phase_steps: gp.steps,
-            gravity_phase_time: gp.time,
-            gravity_phase_seconds: gp.wall_seconds,
-            soil_top,
+            time_step: mpm.params.dt,
+            gravity_phase_steps: r.gravity.steps,
+            gravity_phase_time: r.gravity.time,
+            gravity_phase_seconds: r.gravity.wall_seconds,
+            soil_top: r.soil_top,
             solid_mass: s.set.total_mass(),
             liquid_mass: mpm.state.liquid.set.total_mass(),
-            solid_mass_relative_change: rel(s.set.total_mass(), solid_mass0),
-            liquid_mass_relative_change: rel(mpm.state.liquid.set.total_mass(), liquid_mass0),
-            max_kinetic_energy: frames.max_kinetic_energy,
+            solid_mass_relative_change: rel(s.set.total_mass(), r.solid_mass0),
+            liquid_mass_relative_change: rel(mpm.state.liquid.set.total_mass(), r.liquid_mass0),
+            max_kinetic_energy: g.max_kinetic_energy,
             final_kinetic_energy: s.set.kinetic_energy() + mpm.state.liquid.set.kinetic_energy(),
-            fluidised_fraction_max: frames.max_fluidised,
-            max_pore_pressure: frames.max_pore_pressure,
-            peak_pore_pressure: frames.peak_pore_pressure,
+            fluidised_fraction_max: g.max_fluidised,
+            max_pore_pressure: g.max_pore_pressure,
+            peak_pore_pressure: g.peak_pore_pressure,
             quadratic_drag: mpm.params.drag.quadratic,
-            recording_fraction: frames.seconds / wall.max(1e-9),
+            recording_fraction: end.recording_seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),
         }),
         wall_seconds_total: None,
         exchange: None,
-    };
-    let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
-    frames.log(t, log_level::INFO, &format!("run {status}: t = {t:.4} s, {steps} steps, runout {runout:.4}"))?;
-    if let Some(rec) = frames.recorder.take() {
-        rec.finish_with_summary(json.clone())?;
-    }
-    std::fs::write(&summary_path, json).map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
-    match failure {
-        Some(e) => Err(e),
-        None => Ok(summary),
     }
 }
 
@@ -461,42 +463,26 @@ fn watchdog(mpm: &Mpm, speed_limit: f64) -> Option<String> {
     None
 }
 
-fn release_gates(mpm: &mut Mpm, gates: &[(String, f64)], frames: &mut Frames) -> Result<(), RecordError> {
+fn release_gates(mpm: &mut Mpm, gates: &[(String, f64)], rec: &mut Recording) -> Result<(), RecordError> {
     for (g, (name, at)) in gates.iter().enumerate() {
         if mpm.state.gates_held[g] && mpm.state.time >= *at - 0.5 * mpm.params.dt {
             mpm.release_gate(g);
-            frames.log(mpm.state.time, log_level::INFO, &format!("gate {name} released"))?;
+            rec.log(mpm.state.time, log_level::INFO, &format!("gate {name} released"))?;
         }
     }
     Ok(())
 }
 
-fn record_state(frames: &mut Frames, mpm: &Mpm) -> Result<(), RecordError> {
-    if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
-        rec.log_bytes(ch.state, mpm.state.time, MpmStateRecord::encode_state(&mpm.state))?;
-    }
-    Ok(())
-}
-
-#[allow(clippy::too_many_arguments)]
-fn record_frame(
-    frames: &mut Frames,
-    mpm: &mut Mpm,
-    y: f32,
-    t_ref: f64,
-    x0: f64,
-    l0: f64,
-    fraction: f64,
-    rest_speed: f64,
-    rate: f64,
-) -> Result<Measures, RecordError> {
-    let started = Instant::now();
-    let peak_p = mpm.take_pore_pressure_peak();
-    let mpm = &*mpm;
+/// Measures one frame into the run's gathered figures and records it.
+fn record_frame(r: &mut MpmRun<'_>, rec: &mut Recording, rate: f64) -> Result<Measures, RecordError> {
+    let an = &r.scene.spec.analysis;
+    let (t_ref, x0, l0) = (r.scene.reference_time(), r.scene.spec.domain.min[0], an.column_length);
+    let y = r.mid_width;
+    let peak_p = r.mpm.take_pore_pressure_peak();
+    let mpm = &r.mpm;
+    let frames = &mut r.gathered;
     let t = mpm.state.time;
-    let mut scratch = std::mem::take(&mut frames.scratch);
-    let m = measure(mpm, fraction, rest_speed, &mut scratch);
-    frames.scratch = scratch;
+    let m = measure(mpm, an.front_mass_fraction, r.scene.spec.output.rest_speed, &mut frames.scratch);
     let norm = |x: f64| (x - x0 - l0) / l0;
     let s = &mpm.state.solid;
     let l = &mpm.state.liquid;
@@ -513,7 +499,7 @@ fn record_frame(
     let max_p = mpm.state.liquid.pressure.iter().cloned().fold(0.0, f64::max);
     frames.max_pore_pressure = frames.max_pore_pressure.max(max_p);
     frames.peak_pore_pressure = frames.peak_pore_pressure.max(peak_p).max(max_p);
-    if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
+    if let (Some(rec), Some(ch)) = (rec.recorder(), r.channels.as_ref()) {
         let solid_fields = |p: usize| {
             let sg = s.stress[p];
             let mean = (sg[0] + sg[1] + sg[3]) / 3.0;
@@ -556,7 +542,6 @@ fn record_frame(
         };
         rec.log(ch.metrics, t, &metrics)?;
     }
-    frames.seconds += started.elapsed().as_secs_f64();
     Ok(m)
 }
 

@@ -8,6 +8,7 @@
 //! The vocabulary these speak (scenes, messages, topics, summaries) is the
 //! `schemas` crate, which depends on none of this.
 
+pub mod driver;
 pub mod exchange;
 pub mod isa;
 pub mod link;

@@ -1,0 +1,331 @@
+//! The one run loop every solver process uses.
+//!
+//! A solver ([`Solver`]) knows how to take one step (its exchange with a
+//! coupled peer included), check itself for a blow-up, record a frame and a
+//! full state, and summarise the run. [`drive`] owns everything around
+//! that, the same for the DEM, the LBM and the MPM: the stop flag, the
+//! recording cadence of frames and states, rest detection, the typed
+//! [`RunStatus`] the run ends with, the last frame and state, progress, and
+//! writing the summary (into the recording's metadata and beside it).
+//!
+//! Order of one iteration, fixed here so that it cannot drift between
+//! solvers (restart and resume hook in here as well):
+//! 1. [`Solver::step`]: one step; a coupled solver exchanges with its peer
+//!    inside it and may end the run ([`Flow::Stop`], [`StepError::Peer`]);
+//! 2. the stop flag (SIGINT/SIGTERM): status `interrupted`,
+//!    [`Solver::interrupted`] tells a peer;
+//! 3. at every `steps_per_frame`-th step: [`Solver::check`] (a blow-up
+//!    ends the run `unstable`), [`Solver::record_frame`], the state at
+//!    every `steps_per_state`-th step, then rest detection;
+//! 4. progress, at most every half second of wall time.
+//!
+//! After the loop: [`Solver::finish`] (a coupled DEM tells its peer), a
+//! last frame unless the run failed or the last step was just recorded, a
+//! last state unless it was just recorded, then the summary.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use schemas::summary::{RunStatus, RunSummary};
+
+use crate::record::{log_entry, log_level, ChannelId, RecordError, Recorder};
+
+/// A run's recording as the solver sees it: absent under `--no-record`.
+#[derive(Debug)]
+pub struct Recording {
+    recorder: Option<Recorder>,
+    log: Option<ChannelId>,
+    source: &'static str,
+    /// Wall seconds spent recording frames and states.
+    pub seconds: f64,
+}
+
+impl Recording {
+    /// No recording (`--no-record`, benchmarks): frames are still measured.
+    pub fn off(source: &'static str) -> Self {
+        Self { recorder: None, log: None, source, seconds: 0.0 }
+    }
+
+    /// Records into `recorder`, with `/log` entries named `source` on `log`.
+    pub fn on(recorder: Recorder, log: ChannelId, source: &'static str) -> Self {
+        Self { recorder: Some(recorder), log: Some(log), source, seconds: 0.0 }
+    }
+
+    /// The recorder, when recording.
+    pub fn recorder(&mut self) -> Option<&mut Recorder> {
+        self.recorder.as_mut()
+    }
+
+    /// A `/log` entry at simulated time `t` (nothing when not recording).
+    pub fn log(&mut self, t: f64, level: i32, message: &str) -> Result<(), RecordError> {
+        if let (Some(r), Some(c)) = (self.recorder.as_mut(), self.log) {
+            r.log(c, t, &log_entry(t, level, self.source, message))?;
+        }
+        Ok(())
+    }
+
+    fn finish_with_summary(&mut self, json: String) -> Result<(), RecordError> {
+        if let Some(rec) = self.recorder.take() {
+            rec.finish_with_summary(json)?;
+        }
+        Ok(())
+    }
+}
+
+/// Whether the run goes on after a step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Flow {
+    Continue,
+    /// The run ends here with this status (a coupled peer announced its
+    /// stop): no failure, the last frame and state are recorded.
+    Stop(RunStatus),
+}
+
+/// Why a step failed.
+#[derive(Debug)]
+pub enum StepError<E> {
+    /// The exchange with the peer failed: status `peer_failed`, or
+    /// `interrupted` when the stop flag is up (a Ctrl-C reaches both
+    /// processes, so the peer's going is no failure then). The last frame
+    /// and state are recorded and the summary written.
+    Peer(E),
+    /// Anything else: the run ends at once with this error.
+    Fatal(E),
+}
+
+impl<E> From<RecordError> for StepError<E>
+where
+    E: From<RecordError>,
+{
+    fn from(e: RecordError) -> Self {
+        StepError::Fatal(e.into())
+    }
+}
+
+/// What a recorded frame tells the driver.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameReport {
+    /// Mass fraction moving faster than `output.rest_speed`; None for a
+    /// solver that never stops at rest (the liquid alone).
+    pub moving_fraction: Option<f64>,
+    /// Whether rest may count yet (every gate released).
+    pub released: bool,
+}
+
+/// Wall-clock figures handed to a frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameClock {
+    /// Work units (grains, cells, points) per wall second since the last frame.
+    pub rate: f64,
+    /// Wall seconds since the loop started.
+    pub wall: f64,
+}
+
+/// How the run ended, for the summary.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunEnd {
+    pub status: RunStatus,
+    /// Wall seconds of the loop.
+    pub wall: f64,
+    /// Work units done (Σ [`Solver::work_per_step`]).
+    pub work: f64,
+    /// Wall seconds spent recording.
+    pub recording_seconds: f64,
+}
+
+/// The recording cadence and the length of the run, in steps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Cadence {
+    pub steps_per_frame: u64,
+    /// None: states only at the start (if [`Cadence::state_at_start`]) and the end.
+    pub steps_per_state: Option<u64>,
+    /// The loop stops when the solver's step count reaches it.
+    pub step_limit: u64,
+    /// Record a state with the first frame.
+    pub state_at_start: bool,
+}
+
+impl Cadence {
+    /// Steps of `dt` per `interval`, at least 1.
+    pub fn steps_in(interval: f64, dt: f64) -> u64 {
+        ((interval / dt).round() as u64).max(1)
+    }
+}
+
+/// When a run ends at rest: `frames` recorded frames in a row with at most
+/// `fraction` of the mass moving, once it has moved and every gate is
+/// released (one frame is not enough: a bouncing grain is momentarily
+/// still at the top of each bounce).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RestRule {
+    pub stop_at_rest: bool,
+    pub fraction: f64,
+    pub frames: u32,
+}
+
+/// Consecutive recorded frames at rest that end a run early.
+pub const REST_FRAMES: u32 = 3;
+
+impl RestRule {
+    /// `output.stop_at_rest` and `output.rest_fraction` of a scene.
+    pub fn of(output: &schemas::scene::OutputSpec) -> Self {
+        Self { stop_at_rest: output.stop_at_rest, fraction: output.rest_fraction, frames: REST_FRAMES }
+    }
+}
+
+/// A solver as the driver steps it.
+pub trait Solver {
+    type Error: From<RecordError> + std::fmt::Display;
+
+    /// Simulated time, s.
+    fn time(&self) -> f64;
+    /// Steps taken.
+    fn steps(&self) -> u64;
+    /// Work units (grains, active cells, points) the next step does.
+    fn work_per_step(&self) -> f64;
+    /// One step, with its exchange when coupled.
+    fn step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<Self::Error>>;
+    /// The stop flag ended the run after a step: tell a peer.
+    fn interrupted(&mut self) {}
+    /// A reason to stop the run as `unstable`, checked before each frame.
+    fn check(&self) -> Result<(), Self::Error>;
+    /// Measures and records one frame.
+    fn record_frame(&mut self, rec: &mut Recording, clock: FrameClock) -> Result<FrameReport, Self::Error>;
+    /// Records the full state (`/…/state`).
+    fn record_state(&mut self, rec: &mut Recording) -> Result<(), Self::Error>;
+    /// After the loop, before the last frame (a coupled DEM tells its peer).
+    fn finish(&mut self, _status: RunStatus, _failed: bool, _rec: &mut Recording) -> Result<(), Self::Error> {
+        Ok(())
+    }
+    /// The run's summary.
+    fn summary(&mut self, end: &RunEnd) -> RunSummary;
+    /// The `/log` line that closes the run.
+    fn closing_line(&self, s: &RunSummary) -> String {
+        format!("run {}: t = {:.4} s, {} steps, runout {:.4}", s.status, s.sim_time, s.steps, s.runout)
+    }
+    /// `summary.json` could not be written.
+    fn cannot_write(path: &Path, source: std::io::Error) -> Self::Error;
+}
+
+/// Runs `solver` to its step limit, to rest, to a stop or a failure (see
+/// the module docs for the order), then writes the summary into the
+/// recording and to `summary_path`. Returns the summary, or the failure
+/// the run ended with once the summary is written.
+pub fn drive<S: Solver>(
+    solver: &mut S,
+    rec: &mut Recording,
+    cadence: Cadence,
+    rest: RestRule,
+    stop: &AtomicBool,
+    progress: &mut dyn FnMut(f64, u64),
+    summary_path: &Path,
+) -> Result<RunSummary, S::Error> {
+    let mut status = RunStatus::Completed;
+    let mut failure: Option<S::Error> = None;
+    let mut work = 0.0_f64;
+    let started = Instant::now();
+    let mut last_frame = (Instant::now(), 0.0_f64);
+    let mut last_progress = Instant::now();
+    let clock0 = FrameClock { rate: 0.0, wall: 0.0 };
+    record(rec, |rec| solver.record_frame(rec, clock0))?;
+    if cadence.state_at_start {
+        record(rec, |rec| solver.record_state(rec))?;
+    }
+    let mut last_recorded = solver.steps();
+    let mut last_state = cadence.state_at_start.then(|| solver.steps());
+    let mut frames_at_rest = 0;
+    let mut has_moved = false;
+    while solver.steps() < cadence.step_limit {
+        let step_work = solver.work_per_step();
+        match solver.step(rec) {
+            Ok(Flow::Continue) => work += step_work,
+            Ok(Flow::Stop(s)) => {
+                status = s;
+                break;
+            }
+            Err(StepError::Peer(e)) => {
+                if stop.load(Ordering::Relaxed) {
+                    status = RunStatus::Interrupted;
+                    rec.log(solver.time(), log_level::WARNING, "interrupted by signal; recording the last state")?;
+                } else {
+                    status = RunStatus::PeerFailed;
+                    rec.log(solver.time(), log_level::ERROR, &format!("exchange: {e}"))?;
+                    failure = Some(e);
+                }
+                break;
+            }
+            Err(StepError::Fatal(e)) => return Err(e),
+        }
+        let (t, steps) = (solver.time(), solver.steps());
+        if stop.load(Ordering::Relaxed) {
+            status = RunStatus::Interrupted;
+            rec.log(t, log_level::WARNING, "interrupted by signal; recording the last state")?;
+            solver.interrupted();
+            break;
+        }
+        if steps.is_multiple_of(cadence.steps_per_frame) {
+            if let Err(e) = solver.check() {
+                status = RunStatus::Unstable;
+                rec.log(t, log_level::ERROR, &e.to_string())?;
+                failure = Some(e);
+                break;
+            }
+            let elapsed = last_frame.0.elapsed().as_secs_f64();
+            let clock =
+                FrameClock { rate: (work - last_frame.1) / elapsed.max(1e-9), wall: started.elapsed().as_secs_f64() };
+            last_frame = (Instant::now(), work);
+            let report = record(rec, |rec| solver.record_frame(rec, clock))?;
+            last_recorded = steps;
+            if cadence.steps_per_state.is_some_and(|n| steps.is_multiple_of(n)) {
+                record(rec, |rec| solver.record_state(rec))?;
+                last_state = Some(steps);
+            }
+            if let Some(moving) = report.moving_fraction {
+                // The mass starts at rest: only a stop after it has moved counts.
+                has_moved |= moving > rest.fraction;
+                frames_at_rest =
+                    if report.released && has_moved && moving <= rest.fraction { frames_at_rest + 1 } else { 0 };
+                if rest.stop_at_rest && frames_at_rest >= rest.frames {
+                    status = RunStatus::AtRest;
+                    rec.log(t, log_level::INFO, "at rest")?;
+                    break;
+                }
+            }
+        }
+        if last_progress.elapsed().as_secs_f64() > 0.5 {
+            progress(t, steps);
+            last_progress = Instant::now();
+        }
+    }
+    solver.finish(status, failure.is_some(), rec)?;
+    let wall = started.elapsed().as_secs_f64();
+    let steps = solver.steps();
+    progress(solver.time(), steps);
+    // The run always ends with a recorded frame and a full state (after a
+    // blow-up the state, not a frame, shows it).
+    if last_recorded != steps && failure.is_none() {
+        record(rec, |rec| solver.record_frame(rec, clock0))?;
+    }
+    if last_state != Some(steps) {
+        record(rec, |rec| solver.record_state(rec))?;
+    }
+    let end = RunEnd { status, wall, work, recording_seconds: rec.seconds };
+    let summary = solver.summary(&end);
+    let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
+    rec.log(summary.sim_time, log_level::INFO, &solver.closing_line(&summary))?;
+    rec.finish_with_summary(json.clone())?;
+    std::fs::write(summary_path, json).map_err(|e| S::cannot_write(summary_path, e))?;
+    match failure {
+        Some(e) => Err(e),
+        None => Ok(summary),
+    }
+}
+
+/// Runs a recording call, adding its wall time to [`Recording::seconds`].
+fn record<T, E>(rec: &mut Recording, f: impl FnOnce(&mut Recording) -> Result<T, E>) -> Result<T, E> {
+    let started = Instant::now();
+    let out = f(rec);
+    rec.seconds += started.elapsed().as_secs_f64();
+    out
+}
