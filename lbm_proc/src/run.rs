@@ -3,18 +3,17 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use foxglove::schemas::{Grid, Log, PointCloud, Pose, Quaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
+use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
 use runtime::exchange::{ExchangeHeader, ParticleState, StatePeer, FLAG_STOPPING};
 use runtime::metrics::{CouplingTimings, LbmMetrics};
 use runtime::process::RunOptions;
-use runtime::record::{
-    f32_field, identity_pose, log_entry, log_level, timestamp, ChannelId, RecordError, Recorder, RecorderBuilder,
-};
+use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError, RecorderBuilder};
 use schemas::measures::{front_position, FrontSample};
 use schemas::scene::Scene;
 use schemas::summary::{ExchangeDetails, LbmDetails, RunStatus, RunSummary, Throughput};
@@ -100,31 +99,18 @@ struct Channels {
     slice: ChannelId,
     metrics: ChannelId,
     state: ChannelId,
-    log: ChannelId,
     /// `/lbm/received_states` (`output.record_exchange` in a coupled run).
     received: Option<ChannelId>,
     /// `/lbm/coupling` (coupled runs).
     coupling: Option<ChannelId>,
 }
 
-/// The recorder (when recording) and what the frames need between calls.
-struct Frames {
-    recorder: Option<Recorder>,
-    channels: Option<Channels>,
-    /// Wall seconds spent building frames.
-    seconds: f64,
+/// What the frames gather over the run for the summary.
+#[derive(Default)]
+struct Gathered {
     scratch: Vec<(f64, f64)>,
     front: Vec<FrontSample>,
     max_mach: f64,
-}
-
-impl Frames {
-    fn log(&mut self, t: f64, level: i32, message: &str) -> Result<(), RecordError> {
-        if let (Some(r), Some(c)) = (self.recorder.as_mut(), self.channels.as_ref()) {
-            r.log(c.log, t, &log_entry(t, level, "lbm_proc", message))?;
-        }
-        Ok(())
-    }
 }
 
 /// The run's lattice, ready to step: walls, gates, the initial liquid at hydrostatic density.
@@ -151,10 +137,9 @@ pub fn run(
     opts: &RunOptions,
     stop: &AtomicBool,
     progress: &mut dyn Progress,
-    mut peer: Option<&mut dyn StatePeer>,
+    peer: Option<&mut dyn StatePeer>,
 ) -> Result<RunSummary, RunError> {
     let setup = LbmSetup::from_scene(scene)?;
-    let t_ref = scene.reference_time();
     let out = &scene.spec.output;
     for note in &setup.notes {
         progress.log(note);
@@ -165,9 +150,7 @@ pub fn run(
 
     std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
     let (mcap_path, summary_path) = output_paths(&opts.out_dir);
-    let mut frames =
-        Frames { recorder: None, channels: None, seconds: 0.0, scratch: Vec::new(), front: Vec::new(), max_mach: 0.0 };
-    if opts.record {
+    let (mut rec, channels) = if opts.record {
         let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
         let mut state_meta = BTreeMap::new();
         state_meta.insert(
@@ -179,7 +162,6 @@ pub fn run(
             slice: b.channel::<Grid>(topics::LBM_SLICE)?,
             metrics: b.channel::<LbmMetrics>(topics::LBM_METRICS)?,
             state: b.raw_channel(topics::LBM_STATE, "bincode", state_meta)?,
-            log: b.channel::<Log>(topics::LOG)?,
             coupling: if peer.is_some() { Some(b.channel::<CouplingTimings>(topics::LBM_COUPLING)?) } else { None },
             received: if peer.is_some() && scene.spec.output.record_exchange {
                 let meta = BTreeMap::from([("encoding".to_string(), runtime::exchange::RECEIVED_ENCODING.to_string())]);
@@ -188,32 +170,27 @@ pub fn run(
                 None
             },
         };
-        let mut rec = b.start(16);
-        rec.scene(scene.to_toml())?;
-        frames.recorder = Some(rec);
-        frames.channels = Some(channels);
-    }
+        let log = b.channel::<Log>(topics::LOG)?;
+        let mut recorder = b.start(16);
+        recorder.scene(scene.to_toml())?;
+        (Recording::on(recorder, log, "lbm_proc"), Some(channels))
+    } else {
+        (Recording::off("lbm_proc"), None)
+    };
     for note in &setup.notes {
-        frames.log(0.0, log_level::INFO, note)?;
+        rec.log(0.0, log_level::INFO, note)?;
     }
 
     let dt = setup.units.dt();
-    let steps_per_frame = ((out.record_interval / dt).round() as u64).max(1);
-    let steps_per_state = out.state_interval.map(|s| ((s / dt).round() as u64).max(1));
     let total_steps = (out.end_time / dt).ceil() as u64;
-    let mut gates_removed = vec![false; setup.gates.len()];
-    let mut time = 0.0;
-    let mut steps = 0u64;
-    let mut cell_updates = 0.0_f64;
-    let mut status = RunStatus::Completed;
-    let started = Instant::now();
-    let mut last_frame = (Instant::now(), 0.0_f64);
-    let mut last_progress = Instant::now();
-    let mut last_recorded = 0u64;
-    let mut last_state = None;
-    let mut failure = None;
-
-    let mut forcing = match peer {
+    let cadence = Cadence {
+        steps_per_frame: Cadence::steps_in(out.record_interval, dt),
+        steps_per_state: out.state_interval.map(|s| Cadence::steps_in(s, dt)),
+        // Coupled, the DEM decides when the run ends; the bound only guards a runaway peer.
+        step_limit: if peer.is_some() { total_steps + 1 } else { total_steps },
+        state_at_start: false,
+    };
+    let forcing = match peer {
         Some(_) => Some(
             GrainForcing::new(
                 Coupling::new(setup.units, setup.origin)
@@ -224,187 +201,247 @@ pub fn run(
         ),
         None => None,
     };
-    let (mut states, mut loads) = (Vec::new(), Vec::new());
-    // Cumulative (exchanges, wall s, wait s, coupling s) at the last frame.
-    let mut coupling_before = [0.0; 4];
-    let mut exchange_seconds = 0.0;
-    release_gates(&mut fluid, &setup, &mut gates_removed, time, &mut frames)?;
-    record_frame(&mut frames, &fluid, scene, &setup, t_ref, time, mass_initial, 0.0)?;
-    // Coupled, the DEM decides when the run ends; the bound only guards a runaway peer.
-    let step_limit = if peer.is_some() { total_steps + 1 } else { total_steps };
-    while steps < step_limit {
-        cell_updates += fluid.active_cells() as f64;
-        if let (Some(p), Some(f)) = (peer.as_deref_mut(), forcing.as_mut()) {
-            let waited = Instant::now();
-            let header = match p.receive_states(steps, &mut states) {
-                Ok(h) => h,
-                // Ctrl-C reaches both processes: waiting for the DEM ends with it.
-                Err(_) if stop.load(Ordering::Relaxed) => {
-                    status = RunStatus::Interrupted;
-                    frames.log(time, log_level::WARNING, "interrupted by signal; recording the last state")?;
-                    break;
-                }
-                Err(source) => {
-                    status = RunStatus::PeerFailed;
-                    frames.log(time, log_level::ERROR, &format!("exchange {steps}: {source}"))?;
-                    failure = Some(RunError::Peer { exchange: steps, source });
-                    break;
-                }
-            };
-            exchange_seconds += waited.elapsed().as_secs_f64();
-            if let (Some(rec), Some(Some(ch))) =
-                (frames.recorder.as_mut(), frames.channels.as_ref().map(|c| c.received))
-            {
-                let received: &[ParticleState] = if header.is_stopping() { &[] } else { &states };
-                // The recorder takes the buffer: one allocation per recorded exchange.
-                let mut bytes = Vec::new();
-                runtime::exchange::encode_states(&header, received, &mut bytes);
-                rec.log_bytes(ch, time, bytes)?;
-            }
-            if header.is_stopping() {
-                frames.log(time, log_level::INFO, &format!("dem_proc stopped at exchange {steps}"))?;
-                break;
-            }
-            f.step(&mut fluid, &header, &states, &mut loads)
-                .map_err(|source| RunError::Coupling { exchange: steps, source })?;
-            let sent = Instant::now();
-            let answer = ExchangeHeader { exchange: steps, time: header.time, count: loads.len() as u32, flags: 0 };
-            let sent_result = p.send_loads(answer, &loads);
-            exchange_seconds += sent.elapsed().as_secs_f64();
-            // The conversions do not change the loads: done while the DEM steps.
-            fluid.finish_step();
-            if let Err(source) = sent_result {
-                status = RunStatus::PeerFailed;
-                failure = Some(RunError::Peer { exchange: steps, source });
-                break;
-            }
-        } else {
-            fluid.step();
+    let mut gates_removed = vec![false; setup.gates.len()];
+    release_gates(&mut fluid, &setup, &mut gates_removed, 0.0, &mut rec)?;
+    let mut solver = LbmRun {
+        scene,
+        setup,
+        fluid,
+        gates_removed,
+        time: 0.0,
+        steps: 0,
+        peer,
+        forcing,
+        states: Vec::new(),
+        loads: Vec::new(),
+        exchange_seconds: 0.0,
+        coupling_before: [0.0; 4],
+        channels,
+        gathered: Gathered::default(),
+        mass_initial,
+        active_initial,
+    };
+    let end_time = out.end_time;
+    drive(
+        &mut solver,
+        &mut rec,
+        cadence,
+        RestRule::of(out),
+        stop,
+        &mut |t, steps| progress.flow(t, end_time, steps),
+        &summary_path,
+    )
+}
+
+/// The lattice as the run driver steps it, with its peer when coupled.
+struct LbmRun<'a, 'p> {
+    scene: &'a Scene,
+    setup: LbmSetup,
+    fluid: Fluid<f32>,
+    gates_removed: Vec<bool>,
+    time: f64,
+    steps: u64,
+    peer: Option<&'p mut dyn StatePeer>,
+    forcing: Option<GrainForcing>,
+    states: Vec<ParticleState>,
+    loads: Vec<runtime::exchange::HydroLoad>,
+    /// Wall seconds spent receiving and sending.
+    exchange_seconds: f64,
+    /// Cumulative (exchanges, wall s, wait s, coupling s) at the last frame.
+    coupling_before: [f64; 4],
+    channels: Option<Channels>,
+    gathered: Gathered,
+    mass_initial: f64,
+    active_initial: usize,
+}
+
+impl LbmRun<'_, '_> {
+    /// Exchange `self.steps` with the DEM: its grain states in, forced into
+    /// the lattice while the step runs, the loads back out.
+    fn coupled_step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
+        let (Some(p), Some(f)) = (self.peer.as_deref_mut(), self.forcing.as_mut()) else {
+            unreachable!("coupled_step without a peer")
+        };
+        let (steps, time) = (self.steps, self.time);
+        let waited = Instant::now();
+        let header = p
+            .receive_states(steps, &mut self.states)
+            .map_err(|source| StepError::Peer(RunError::Peer { exchange: steps, source }))?;
+        self.exchange_seconds += waited.elapsed().as_secs_f64();
+        if let (Some(r), Some(Some(ch))) = (rec.recorder(), self.channels.as_ref().map(|c| c.received)) {
+            let received: &[ParticleState] = if header.is_stopping() { &[] } else { &self.states };
+            // The recorder takes the buffer: one allocation per recorded exchange.
+            let mut bytes = Vec::new();
+            runtime::exchange::encode_states(&header, received, &mut bytes);
+            r.log_bytes(ch, time, bytes)?;
         }
-        steps += 1;
-        time = steps as f64 * dt;
-        release_gates(&mut fluid, &setup, &mut gates_removed, time, &mut frames)?;
-        if stop.load(Ordering::Relaxed) {
-            status = RunStatus::Interrupted;
-            frames.log(time, log_level::WARNING, "interrupted by signal; recording the last state")?;
-            if let Some(p) = peer.as_deref_mut() {
-                // The DEM may be waiting for this step's load: tell it to stop too.
-                let _ = p.send_loads(ExchangeHeader { exchange: steps, time, count: 0, flags: FLAG_STOPPING }, &[]);
-            }
-            break;
+        if header.is_stopping() {
+            rec.log(time, log_level::INFO, &format!("dem_proc stopped at exchange {steps}"))?;
+            return Ok(Flow::Stop(RunStatus::Completed));
         }
-        if steps.is_multiple_of(steps_per_frame) {
-            let elapsed = last_frame.0.elapsed().as_secs_f64();
-            let mlups = (cell_updates - last_frame.1) / elapsed.max(1e-9) / 1e6;
-            last_frame = (Instant::now(), cell_updates);
-            if let Err(instability) = fluid.check(&setup.limits) {
-                status = RunStatus::Unstable;
-                frames.log(time, log_level::ERROR, &instability.to_string())?;
-                failure = Some(RunError::Unstable { t: time, instability: Box::new(instability) });
-                break;
-            }
-            record_frame(&mut frames, &fluid, scene, &setup, t_ref, time, mass_initial, mlups)?;
-            if let (Some(f), Some(rec), Some(Some(ch))) =
-                (forcing.as_ref(), frames.recorder.as_mut(), frames.channels.as_ref().map(|c| c.coupling))
-            {
-                let now = [steps as f64, started.elapsed().as_secs_f64(), exchange_seconds, f.coupling_seconds];
-                rec.log(ch, time, &CouplingTimings::between(time, now, coupling_before))?;
-                coupling_before = now;
-            }
-            last_recorded = steps;
-            if steps_per_state.is_some_and(|n| steps.is_multiple_of(n)) {
-                record_state(&mut frames, &fluid, time, &gates_removed)?;
-                last_state = Some(steps);
-            }
-        }
-        if last_progress.elapsed().as_secs_f64() > 0.5 {
-            progress.flow(time, out.end_time, steps);
-            last_progress = Instant::now();
-        }
+        f.step(&mut self.fluid, &header, &self.states, &mut self.loads)
+            .map_err(|source| StepError::Fatal(RunError::Coupling { exchange: steps, source }))?;
+        let sent = Instant::now();
+        let answer = ExchangeHeader { exchange: steps, time: header.time, count: self.loads.len() as u32, flags: 0 };
+        let sent_result = p.send_loads(answer, &self.loads);
+        self.exchange_seconds += sent.elapsed().as_secs_f64();
+        // The conversions do not change the loads: done while the DEM steps.
+        self.fluid.finish_step();
+        sent_result.map_err(|source| StepError::Peer(RunError::Peer { exchange: steps, source }))?;
+        Ok(Flow::Continue)
     }
-    let wall = started.elapsed().as_secs_f64();
-    progress.flow(time, out.end_time, steps);
-    // The run always ends with a recorded frame and a full state (also after a blow-up: the state shows it).
-    if last_recorded != steps && failure.is_none() {
-        record_frame(&mut frames, &fluid, scene, &setup, t_ref, time, mass_initial, 0.0)?;
-    }
-    if last_state != Some(steps) {
-        record_state(&mut frames, &fluid, time, &gates_removed)?;
+}
+
+impl Solver for LbmRun<'_, '_> {
+    type Error = RunError;
+
+    fn time(&self) -> f64 {
+        self.time
     }
 
-    let mass_final = fluid.liquid_mass();
-    let mass_si = |m: f64| m * setup.density * setup.units.dx().powi(3);
-    let summary = RunSummary {
-        scene: scene.spec.scene.name.clone(),
-        method: if forcing.is_some() { "dem_lbm" } else { "lbm" }.into(),
-        status,
-        sim_time: time,
-        wall_seconds: wall,
-        steps,
-        throughput: Throughput {
-            particle_steps_per_s: None,
-            cell_updates_per_s: Some(cell_updates / wall.max(1e-9)),
-            point_updates_per_s: None,
-            wall_per_sim_second: wall / time.max(1e-12),
-        },
-        t_ref,
-        front: Vec::new(),
-        runout: f64::NAN,
-        front_connected: Vec::new(),
-        runout_connected: None,
-        front_pile: Vec::new(),
-        runout_pile: None,
-        deposit: Vec::new(),
-        porosity_initial: f64::NAN,
-        liquid_front: std::mem::take(&mut frames.front),
-        dem: None,
-        lbm: Some(LbmDetails {
-            dims: setup.dims,
-            spacing: setup.units.dx(),
-            time_step: dt,
-            tau: setup.params.tau,
-            collision: format!("{:?}", setup.params.collision),
-            smagorinsky: setup.params.smagorinsky,
-            active_cells_initial: active_initial,
-            active_cells_final: fluid.active_cells(),
-            mass_initial: mass_si(mass_initial),
-            mass_final: mass_si(mass_final),
-            mass_relative_change: (mass_final - mass_initial) / mass_initial,
-            pending_mass_final: mass_si(fluid.pending_excess()),
-            returned_mass: mass_si(fluid.returned_excess()),
-            max_mach: frames.max_mach,
-            recording_fraction: frames.seconds / wall.max(1e-9),
-            threads: rayon::current_num_threads(),
-            stage_seconds: schemas::summary::stage_seconds_map(&fluid.stage_seconds),
-        }),
-        mpm: None,
-        wall_seconds_total: None,
-        exchange: forcing.as_ref().map(|f| ExchangeDetails {
-            schedule: scene.spec.coupling.schedule.name().into(),
-            ratio: scene.spec.coupling.ratio,
-            exchanges: steps,
-            seconds: exchange_seconds,
-            fraction: exchange_seconds / wall.max(1e-9),
-            kernel_seconds: f.coupling_seconds,
-            forcing_gain: Some(scene.spec.coupling.forcing_gain.name().into()),
-        }),
-    };
-    let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
-    frames.log(
-        time,
-        log_level::INFO,
-        &format!(
-            "run {status}: t = {time:.4} s, {steps} steps, mass change {:.3e}",
-            (mass_final - mass_initial) / mass_initial
-        ),
-    )?;
-    if let Some(rec) = frames.recorder.take() {
-        rec.finish_with_summary(json.clone())?;
+    fn steps(&self) -> u64 {
+        self.steps
     }
-    std::fs::write(&summary_path, json).map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
-    match failure {
-        Some(e) => Err(e),
-        None => Ok(summary),
+
+    fn work_per_step(&self) -> f64 {
+        self.fluid.active_cells() as f64
+    }
+
+    fn step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
+        if self.peer.is_some() {
+            if let Flow::Stop(s) = self.coupled_step(rec)? {
+                return Ok(Flow::Stop(s));
+            }
+        } else {
+            self.fluid.step();
+        }
+        self.steps += 1;
+        self.time = self.steps as f64 * self.setup.units.dt();
+        release_gates(&mut self.fluid, &self.setup, &mut self.gates_removed, self.time, rec)
+            .map_err(StepError::Fatal)?;
+        Ok(Flow::Continue)
+    }
+
+    fn interrupted(&mut self) {
+        if let Some(p) = self.peer.as_deref_mut() {
+            // The DEM may be waiting for this step's load: tell it to stop too.
+            let header = ExchangeHeader { exchange: self.steps, time: self.time, count: 0, flags: FLAG_STOPPING };
+            let _ = p.send_loads(header, &[]);
+        }
+    }
+
+    fn check(&self) -> Result<(), RunError> {
+        self.fluid
+            .check(&self.setup.limits)
+            .map_err(|instability| RunError::Unstable { t: self.time, instability: Box::new(instability) })
+    }
+
+    fn record_frame(&mut self, rec: &mut Recording, clock: FrameClock) -> Result<FrameReport, RunError> {
+        record_frame(
+            &mut self.gathered,
+            rec,
+            self.channels.as_ref(),
+            &self.fluid,
+            self.scene,
+            &self.setup,
+            self.time,
+            self.mass_initial,
+            clock.rate / 1e6,
+        )?;
+        if let (Some(f), Some(r), Some(Some(ch))) =
+            (self.forcing.as_ref(), rec.recorder(), self.channels.as_ref().map(|c| c.coupling))
+        {
+            if self.steps > 0 {
+                let now = [self.steps as f64, clock.wall, self.exchange_seconds, f.coupling_seconds];
+                r.log(ch, self.time, &CouplingTimings::between(self.time, now, self.coupling_before))?;
+                self.coupling_before = now;
+            }
+        }
+        Ok(FrameReport { moving_fraction: None, released: true })
+    }
+
+    fn record_state(&mut self, rec: &mut Recording) -> Result<(), RunError> {
+        if let (Some(r), Some(ch)) = (rec.recorder(), self.channels.as_ref()) {
+            let state = LbmState {
+                version: STATE_VERSION,
+                time: self.time,
+                gates_removed: self.gates_removed.clone(),
+                fluid: self.fluid.state().clone(),
+            };
+            r.log_bytes(ch.state, self.time, state.encode())?;
+        }
+        Ok(())
+    }
+
+    fn summary(&mut self, end: &RunEnd) -> RunSummary {
+        let (scene, setup, fluid) = (self.scene, &self.setup, &self.fluid);
+        let (time, steps, wall) = (self.time, self.steps, end.wall);
+        let mass_final = fluid.liquid_mass();
+        let mass_si = |m: f64| m * setup.density * setup.units.dx().powi(3);
+        RunSummary {
+            scene: scene.spec.scene.name.clone(),
+            method: if self.forcing.is_some() { "dem_lbm" } else { "lbm" }.into(),
+            status: end.status,
+            sim_time: time,
+            wall_seconds: wall,
+            steps,
+            throughput: Throughput {
+                particle_steps_per_s: None,
+                cell_updates_per_s: Some(end.work / wall.max(1e-9)),
+                point_updates_per_s: None,
+                wall_per_sim_second: wall / time.max(1e-12),
+            },
+            t_ref: scene.reference_time(),
+            front: Vec::new(),
+            runout: f64::NAN,
+            front_connected: Vec::new(),
+            runout_connected: None,
+            front_pile: Vec::new(),
+            runout_pile: None,
+            deposit: Vec::new(),
+            porosity_initial: f64::NAN,
+            liquid_front: std::mem::take(&mut self.gathered.front),
+            dem: None,
+            lbm: Some(LbmDetails {
+                dims: setup.dims,
+                spacing: setup.units.dx(),
+                time_step: setup.units.dt(),
+                tau: setup.params.tau,
+                collision: format!("{:?}", setup.params.collision),
+                smagorinsky: setup.params.smagorinsky,
+                active_cells_initial: self.active_initial,
+                active_cells_final: fluid.active_cells(),
+                mass_initial: mass_si(self.mass_initial),
+                mass_final: mass_si(mass_final),
+                mass_relative_change: (mass_final - self.mass_initial) / self.mass_initial,
+                pending_mass_final: mass_si(fluid.pending_excess()),
+                returned_mass: mass_si(fluid.returned_excess()),
+                max_mach: self.gathered.max_mach,
+                recording_fraction: end.recording_seconds / wall.max(1e-9),
+                threads: rayon::current_num_threads(),
+                stage_seconds: schemas::summary::stage_seconds_map(&fluid.stage_seconds),
+            }),
+            mpm: None,
+            wall_seconds_total: None,
+            exchange: self.forcing.as_ref().map(|f| ExchangeDetails {
+                schedule: scene.spec.coupling.schedule.name().into(),
+                ratio: scene.spec.coupling.ratio,
+                exchanges: steps,
+                seconds: self.exchange_seconds,
+                fraction: self.exchange_seconds / wall.max(1e-9),
+                kernel_seconds: f.coupling_seconds,
+                forcing_gain: Some(scene.spec.coupling.forcing_gain.name().into()),
+            }),
+        }
+    }
+
+    fn closing_line(&self, s: &RunSummary) -> String {
+        let change = s.lbm.as_ref().map_or(f64::NAN, |l| l.mass_relative_change);
+        format!("run {}: t = {:.4} s, {} steps, mass change {change:.3e}", s.status, s.sim_time, s.steps)
+    }
+
+    fn cannot_write(path: &Path, source: std::io::Error) -> RunError {
+        RunError::Io { path: path.to_path_buf(), source }
     }
 }
 
@@ -413,27 +450,14 @@ fn release_gates(
     setup: &LbmSetup,
     removed: &mut [bool],
     time: f64,
-    frames: &mut Frames,
+    rec: &mut Recording,
 ) -> Result<(), RunError> {
     for (g, gate) in setup.gates.iter().enumerate() {
         if !removed[g] && time >= gate.release_time {
             fluid.remove_walls(&gate.cells).map_err(|e| RunError::Lattice(e.to_string()))?;
             removed[g] = true;
-            frames.log(time, log_level::INFO, &format!("gate {} removed ({} cells)", gate.name, gate.cells.len()))?;
+            rec.log(time, log_level::INFO, &format!("gate {} removed ({} cells)", gate.name, gate.cells.len()))?;
         }
-    }
-    Ok(())
-}
-
-fn record_state(frames: &mut Frames, fluid: &Fluid<f32>, time: f64, gates_removed: &[bool]) -> Result<(), RecordError> {
-    if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
-        let state = LbmState {
-            version: STATE_VERSION,
-            time,
-            gates_removed: gates_removed.to_vec(),
-            fluid: fluid.state().clone(),
-        };
-        rec.log_bytes(ch.state, time, state.encode())?;
     }
     Ok(())
 }
@@ -494,16 +518,17 @@ fn slice_column(samples: &[Option<Sample>], cs2: f64, to_pascal: f64, weight_z: 
 
 #[allow(clippy::too_many_arguments)]
 fn record_frame(
-    frames: &mut Frames,
+    frames: &mut Gathered,
+    rec: &mut Recording,
+    channels: Option<&Channels>,
     fluid: &Fluid<f32>,
     scene: &Scene,
     setup: &LbmSetup,
-    t_ref: f64,
     t: f64,
     mass_initial: f64,
     mlups: f64,
 ) -> Result<(), RecordError> {
-    let started = Instant::now();
+    let t_ref = scene.reference_time();
     let units = &setup.units;
     let dx = units.dx();
     let x0 = scene.spec.domain.min[0];
@@ -525,7 +550,7 @@ fn record_frame(
     let max_mach = max_speed / CS2.sqrt();
     frames.max_mach = frames.max_mach.max(max_mach);
 
-    if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
+    if let (Some(rec), Some(ch)) = (rec.recorder(), channels) {
         // Free surface: interface cells with their fill and speed.
         const STRIDE: usize = 20;
         let mut data = Vec::new();
@@ -618,7 +643,6 @@ fn record_frame(
         };
         rec.log(ch.metrics, t, &metrics)?;
     }
-    frames.seconds += started.elapsed().as_secs_f64();
     Ok(())
 }
 
