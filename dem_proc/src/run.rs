@@ -3,25 +3,25 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
+use std::sync::atomic::AtomicBool;
 
 use foxglove::schemas::{Color, Log, PointCloud, Pose, SceneEntity, SceneUpdate, SpherePrimitive, Vector3};
 use serde::{Deserialize, Serialize};
 
+use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
+use runtime::exchange::LoadPeer;
 use runtime::metrics::{CouplingTimings, DemMetrics};
 use runtime::process::RunOptions;
 use runtime::record::{
-    f32_field, identity_pose, identity_quaternion, log_entry, log_level, timestamp, ChannelId, RecordError, Recorder,
-    RecorderBuilder,
+    f32_field, identity_pose, identity_quaternion, log_level, timestamp, ChannelId, RecordError, RecorderBuilder,
 };
 use schemas::measures::{coordination_shares, deposit_profile, front_position, pile_edge, FrontSample};
 use schemas::scene::Scene;
 use schemas::summary::{DemDetails, ExchangeDetails, RunStatus, RunSummary, Throughput};
 use schemas::topics;
 
-use crate::hydro::{Connect, Flow, HydroExchange};
-use crate::packing::{self, Packing, PackingError};
+use crate::hydro::{Connect, Flow as ExchangeFlow, HydroExchange};
+use crate::packing::{self, Packing, PackingError, PackingReport};
 use crate::setup::{walls, DemSetup};
 use crate::world::{Grains, Histories, World};
 
@@ -136,31 +136,14 @@ struct Channels {
     spheres: Option<ChannelId>,
     metrics: ChannelId,
     state: ChannelId,
-    log: ChannelId,
     /// `/dem/received_loads` (`output.record_exchange` in a coupled run).
     received: Option<ChannelId>,
     /// `/dem/coupling` (coupled runs).
     coupling: Option<ChannelId>,
 }
 
-struct Frames {
-    recorder: Option<Recorder>,
-    channels: Option<Channels>,
-    seconds: f64,
-    scratch: Vec<(f64, f64)>,
-}
-
-impl Frames {
-    fn log(&mut self, t: f64, level: i32, message: &str) -> Result<(), RecordError> {
-        if let (Some(r), Some(c)) = (self.recorder.as_mut(), self.channels.as_ref()) {
-            r.log(c.log, t, &log_entry(t, level, "dem_proc", message))?;
-        }
-        Ok(())
-    }
-}
-
 /// Consecutive recorded frames at rest that end a run early.
-pub const REST_FRAMES: u32 = 3;
+pub use runtime::driver::REST_FRAMES;
 
 /// Where `dem_proc` writes its recording and its summary.
 pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
@@ -181,11 +164,106 @@ pub fn run(
     connect: Option<Connect<'_>>,
 ) -> Result<RunSummary, RunError> {
     let setup = DemSetup::from_scene(scene);
-    let t_ref = scene.reference_time();
-    let l0 = scene.spec.analysis.column_length;
-    let x0 = scene.spec.domain.min[0];
     let out = &scene.spec.output;
+    let (packing, early_log) = prepare_packing(scene, &setup, stop, progress)?;
+    let rep = packing.report.clone();
+    let world = collapse_world(scene, &setup, &packing);
+    drop(packing);
+    let coordination_initial = world.mean_coordination();
+    let peer = match connect {
+        Some(c) => {
+            progress.log(&format!("connecting to lbm_proc with {} grains", world.len()));
+            Some(c(world.len()).map_err(|source| RunError::Peer { t: 0.0, source })?)
+        }
+        None => None,
+    };
 
+    std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
+    let (mcap_path, summary_path) = output_paths(&opts.out_dir);
+    let (mut rec, channels) = if opts.record {
+        let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
+        let mut state_meta = BTreeMap::new();
+        state_meta.insert("encoding".into(), format!("bincode 2 (serde, standard config) of dem_proc::run::DemState version {STATE_VERSION}; see docs/recording.md"));
+        let channels = Channels {
+            particles: b.channel::<PointCloud>(topics::DEM_PARTICLES)?,
+            spheres: if out.spheres { Some(b.channel::<SceneUpdate>(topics::DEM_SPHERES)?) } else { None },
+            metrics: b.channel::<DemMetrics>(topics::DEM_METRICS)?,
+            state: b.raw_channel(topics::DEM_STATE, "bincode", state_meta)?,
+            coupling: if peer.is_some() { Some(b.channel::<CouplingTimings>(topics::DEM_COUPLING)?) } else { None },
+            received: if peer.is_some() && out.record_exchange {
+                let meta = BTreeMap::from([("encoding".to_string(), runtime::exchange::RECEIVED_ENCODING.to_string())]);
+                Some(b.raw_channel(topics::DEM_RECEIVED_LOADS, "sgf-exchange", meta)?)
+            } else {
+                None
+            },
+        };
+        let log = b.channel::<Log>(topics::LOG)?;
+        let mut recorder = b.start(64);
+        recorder.scene(scene.to_toml())?;
+        (Recording::on(recorder, log, "dem_proc"), Some(channels))
+    } else {
+        (Recording::off("dem_proc"), None)
+    };
+
+    let dt = setup.numerics.dt;
+    let cadence = Cadence {
+        steps_per_frame: Cadence::steps_in(out.record_interval, dt),
+        steps_per_state: Some(Cadence::steps_in(out.state_interval.unwrap_or(5.0 * out.record_interval), dt)),
+        step_limit: (out.end_time / dt).ceil() as u64,
+        state_at_start: true,
+    };
+    let last_release = world.walls.iter().map(|w| w.release_time).filter(|t| t.is_finite()).fold(0.0, f64::max);
+    let front = Fronts {
+        solid_fraction: if rep.porosity_bulk.is_finite() { 1.0 - rep.porosity_bulk } else { 0.6 },
+        width: scene.spec.domain.max[1] - scene.spec.domain.min[1],
+        bin: setup.max_diameter,
+        ..Fronts::default()
+    };
+    for line in &early_log {
+        rec.log(0.0, log_level::INFO, line)?;
+    }
+    rec.log(
+        0.0,
+        log_level::INFO,
+        &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk),
+    )?;
+    let mut hydro = peer.is_some().then(|| HydroExchange::from_scene(scene, dt));
+    if let Some(h) = hydro.as_mut() {
+        h.record_received = channels.as_ref().is_some_and(|c| c.received.is_some());
+    }
+    let mut solver = DemRun {
+        scene,
+        setup,
+        world,
+        peer,
+        hydro,
+        channels,
+        front,
+        scratch: Vec::new(),
+        last_release,
+        coordination_initial,
+        packing: rep,
+        coupling_before: [0.0; 4],
+    };
+    let end_time = out.end_time;
+    drive(
+        &mut solver,
+        &mut rec,
+        cadence,
+        RestRule::of(out),
+        stop,
+        &mut |t, steps| progress.collapse(t, end_time, steps),
+        &summary_path,
+    )
+}
+
+/// The packing (deposited or from the cache), with the lines that report it.
+fn prepare_packing(
+    scene: &Scene,
+    setup: &DemSetup,
+    stop: &AtomicBool,
+    progress: &mut dyn Progress,
+) -> Result<(Packing, Vec<String>), RunError> {
     // Lines logged before the recorder exists go to /log at t = 0 as well.
     let mut early_log = Vec::new();
     let mut note = |progress: &mut dyn Progress, line: String| {
@@ -202,7 +280,7 @@ pub fn run(
         setup.numerics.dt,
         setup.steps_per_contact
     ));
-    let packing = packing::build(scene, &setup, stop, |t, tmax| progress.deposition(t, tmax))?;
+    let packing = packing::build(scene, setup, stop, |t, tmax| progress.deposition(t, tmax))?;
     let rep = &packing.report;
     note(
         progress,
@@ -228,181 +306,122 @@ pub fn run(
             ),
         );
     }
+    Ok((packing, early_log))
+}
 
-    let mut world = collapse_world(scene, &setup, &packing);
-    let coordination_initial = world.mean_coordination();
-    let mut peer = match connect {
-        Some(c) => {
-            progress.log(&format!("connecting to lbm_proc with {} grains", world.len()));
-            Some(c(world.len()).map_err(|source| RunError::Peer { t: 0.0, source })?)
-        }
-        None => None,
-    };
+/// The DEM as the run driver steps it, with its peer when coupled.
+struct DemRun<'a, 'p> {
+    scene: &'a Scene,
+    setup: DemSetup,
+    world: World,
+    peer: Option<Box<dyn LoadPeer + 'p>>,
+    hydro: Option<HydroExchange>,
+    channels: Option<Channels>,
+    front: Fronts,
+    scratch: Vec<(f64, f64)>,
+    /// The last gate's release, s: rest counts only after it.
+    last_release: f64,
+    coordination_initial: f64,
+    packing: PackingReport,
+    /// Cumulative (exchanges, wall s, wait s, coupling s) at the last frame.
+    coupling_before: [f64; 4],
+}
 
-    std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
-    let (mcap_path, summary_path) = output_paths(&opts.out_dir);
-    let mut frames = Frames { recorder: None, channels: None, seconds: 0.0, scratch: Vec::new() };
-    if opts.record {
-        let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
-        let mut state_meta = BTreeMap::new();
-        state_meta.insert("encoding".into(), format!("bincode 2 (serde, standard config) of dem_proc::run::DemState version {STATE_VERSION}; see docs/recording.md"));
-        let channels = Channels {
-            particles: b.channel::<PointCloud>(topics::DEM_PARTICLES)?,
-            spheres: if out.spheres { Some(b.channel::<SceneUpdate>(topics::DEM_SPHERES)?) } else { None },
-            metrics: b.channel::<DemMetrics>(topics::DEM_METRICS)?,
-            state: b.raw_channel(topics::DEM_STATE, "bincode", state_meta)?,
-            log: b.channel::<Log>(topics::LOG)?,
-            coupling: if peer.is_some() { Some(b.channel::<CouplingTimings>(topics::DEM_COUPLING)?) } else { None },
-            received: if peer.is_some() && out.record_exchange {
-                let meta = BTreeMap::from([("encoding".to_string(), runtime::exchange::RECEIVED_ENCODING.to_string())]);
-                Some(b.raw_channel(topics::DEM_RECEIVED_LOADS, "sgf-exchange", meta)?)
-            } else {
-                None
-            },
-        };
-        let mut rec = b.start(64);
-        rec.scene(scene.to_toml())?;
-        frames.recorder = Some(rec);
-        frames.channels = Some(channels);
+impl Solver for DemRun<'_, '_> {
+    type Error = RunError;
+
+    fn time(&self) -> f64 {
+        self.world.time
     }
 
-    let dt = setup.numerics.dt;
-    let steps_per_frame = ((out.record_interval / dt).round() as u64).max(1);
-    let steps_per_state = ((out.state_interval.unwrap_or(5.0 * out.record_interval) / dt).round() as u64).max(1);
-    let total_steps = (out.end_time / dt).ceil() as u64;
-    let last_release = world.walls.iter().map(|w| w.release_time).filter(|t| t.is_finite()).fold(0.0, f64::max);
-
-    let mut front = Fronts {
-        solid_fraction: if rep.porosity_bulk.is_finite() { 1.0 - rep.porosity_bulk } else { 0.6 },
-        width: scene.spec.domain.max[1] - scene.spec.domain.min[1],
-        bin: setup.max_diameter,
-        ..Fronts::default()
-    };
-    let started = Instant::now();
-    let mut last_frame = (Instant::now(), 0u64);
-    let mut last_progress = Instant::now();
-    let mut status = RunStatus::Completed;
-    let mut last_recorded_step = 0u64;
-    let mut last_state_step = 0u64;
-    // Frames in a row that met the rest criterion: one is not enough, a
-    // bouncing grain is momentarily still at the top of each bounce.
-    let mut frames_at_rest = 0;
-    let mut has_moved = false;
-    for line in &early_log {
-        frames.log(0.0, log_level::INFO, line)?;
+    fn steps(&self) -> u64 {
+        self.world.step_count
     }
-    frames.log(
-        0.0,
-        log_level::INFO,
-        &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk),
-    )?;
-    record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
 
-    let mut hydro = peer.is_some().then(|| HydroExchange::from_scene(scene, dt));
-    // Cumulative (exchanges, wall s, wait s, coupling s) at the last frame.
-    let mut coupling_before = [0.0; 4];
-    if let Some(h) = hydro.as_mut() {
-        h.record_received = frames.channels.as_ref().is_some_and(|c| c.received.is_some());
+    fn work_per_step(&self) -> f64 {
+        self.world.len() as f64
     }
-    let mut failure = None;
-    while world.step_count < total_steps {
-        if let (Some(h), Some(p)) = (hydro.as_mut(), peer.as_deref_mut()) {
-            if h.due(&world) {
-                let result = h.exchange(&mut world, p);
-                if let (Some(rec), Some(Some(ch))) =
-                    (frames.recorder.as_mut(), frames.channels.as_ref().map(|c| c.received))
-                {
+
+    fn step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
+        if let (Some(h), Some(p)) = (self.hydro.as_mut(), self.peer.as_deref_mut()) {
+            if h.due(&self.world) {
+                let result = h.exchange(&mut self.world, p);
+                if let (Some(r), Some(Some(ch))) = (rec.recorder(), self.channels.as_ref().map(|c| c.received)) {
                     for (t, bytes) in h.received.drain(..) {
-                        rec.log_bytes(ch, t, bytes)?;
+                        r.log_bytes(ch, t, bytes)?;
                     }
                 }
                 match result {
-                    Ok(Flow::Continue) => {}
-                    Ok(Flow::PeerStopped) => {
-                        status = RunStatus::PeerStopped;
-                        frames.log(world.time, log_level::WARNING, "lbm_proc stopped; recording the last state")?;
-                        break;
+                    Ok(ExchangeFlow::Continue) => {}
+                    Ok(ExchangeFlow::PeerStopped) => {
+                        rec.log(self.world.time, log_level::WARNING, "lbm_proc stopped; recording the last state")?;
+                        return Ok(Flow::Stop(RunStatus::PeerStopped));
                     }
-                    // Ctrl-C reaches both processes: waiting for the LBM ends with it.
-                    Err(_) if stop.load(Ordering::Relaxed) => {
-                        status = RunStatus::Interrupted;
-                        frames.log(
-                            world.time,
-                            log_level::WARNING,
-                            "interrupted by signal; recording the last state",
-                        )?;
-                        break;
-                    }
-                    Err(source) => {
-                        status = RunStatus::PeerFailed;
-                        frames.log(world.time, log_level::ERROR, &format!("exchange: {source}"))?;
-                        failure = Some(RunError::Peer { t: world.time, source });
-                        break;
-                    }
+                    Err(source) => return Err(StepError::Peer(RunError::Peer { t: self.world.time, source })),
                 }
             }
         }
-        world.step();
-        let s = world.step_count;
-        if stop.load(Ordering::Relaxed) {
-            status = RunStatus::Interrupted;
-            frames.log(world.time, log_level::WARNING, "interrupted by signal; recording the last state")?;
-            break;
-        }
-        if s.is_multiple_of(steps_per_frame) {
-            let elapsed = last_frame.0.elapsed().as_secs_f64();
-            let rate = (s - last_frame.1) as f64 * world.len() as f64 / elapsed.max(1e-9);
-            last_frame = (Instant::now(), s);
-            let with_state = s.is_multiple_of(steps_per_state);
-            record_frame(&mut frames, &world, scene, t_ref, &mut front, rate, with_state)?;
-            if let (Some(h), Some(rec), Some(Some(ch))) =
-                (hydro.as_ref(), frames.recorder.as_mut(), frames.channels.as_ref().map(|c| c.coupling))
-            {
-                let now = [h.exchanges as f64, started.elapsed().as_secs_f64(), h.exchange_seconds, 0.0];
-                rec.log(ch, world.time, &CouplingTimings::between(world.time, now, coupling_before))?;
-                coupling_before = now;
-            }
-            last_recorded_step = s;
-            if with_state {
-                last_state_step = s;
-            }
-            check_blow_up(&world, &setup)?;
-            let moving = moving_mass_fraction(&world, out.rest_speed);
-            // The grains start at rest: only a stop after they have moved counts.
-            has_moved |= moving > out.rest_fraction;
-            if out.stop_at_rest && has_moved && world.time > last_release && moving <= out.rest_fraction {
-                frames_at_rest += 1;
-                if frames_at_rest >= REST_FRAMES {
-                    status = RunStatus::AtRest;
-                    break;
-                }
-            } else {
-                frames_at_rest = 0;
-            }
-        }
-        if last_progress.elapsed().as_secs_f64() > 0.5 {
-            progress.collapse(world.time, out.end_time, s);
-            last_progress = Instant::now();
-        }
-    }
-    if let (Some(h), Some(p), None) = (hydro.as_mut(), peer.as_deref_mut(), failure.as_ref()) {
-        if status != RunStatus::PeerStopped {
-            if let Err(source) = h.finish(&world, p) {
-                frames.log(world.time, log_level::WARNING, &format!("could not tell lbm_proc to stop: {source}"))?;
-            }
-        }
-    }
-    let wall = started.elapsed().as_secs_f64();
-    progress.collapse(world.time, out.end_time, world.step_count);
-    // The run always ends with a recorded frame and a full state.
-    if last_recorded_step != world.step_count {
-        record_frame(&mut frames, &world, scene, t_ref, &mut front, 0.0, true)?;
-    } else if last_state_step != world.step_count {
-        if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
-            rec.log_bytes(ch.state, world.time, DemState::capture(&world).encode())?;
-        }
+        self.world.step();
+        Ok(Flow::Continue)
     }
 
+    fn check(&self) -> Result<(), RunError> {
+        check_blow_up(&self.world, &self.setup)
+    }
+
+    fn record_frame(&mut self, rec: &mut Recording, clock: FrameClock) -> Result<FrameReport, RunError> {
+        record_frame(self, rec, clock.rate)?;
+        if let (Some(h), Some(r), Some(Some(ch))) =
+            (self.hydro.as_ref(), rec.recorder(), self.channels.as_ref().map(|c| c.coupling))
+        {
+            if self.world.step_count > 0 {
+                let t = self.world.time;
+                let now = [h.exchanges as f64, clock.wall, h.exchange_seconds, 0.0];
+                r.log(ch, t, &CouplingTimings::between(t, now, self.coupling_before))?;
+                self.coupling_before = now;
+            }
+        }
+        let moving = moving_mass_fraction(&self.world, self.scene.spec.output.rest_speed);
+        Ok(FrameReport { moving_fraction: Some(moving), released: self.world.time > self.last_release })
+    }
+
+    fn record_state(&mut self, rec: &mut Recording) -> Result<(), RunError> {
+        if let (Some(r), Some(ch)) = (rec.recorder(), self.channels.as_ref()) {
+            r.log_bytes(ch.state, self.world.time, DemState::capture(&self.world).encode())?;
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self, status: RunStatus, failed: bool, rec: &mut Recording) -> Result<(), RunError> {
+        if let (Some(h), Some(p)) = (self.hydro.as_mut(), self.peer.as_deref_mut()) {
+            if !failed && status != RunStatus::PeerStopped {
+                if let Err(source) = h.finish(&self.world, p) {
+                    rec.log(
+                        self.world.time,
+                        log_level::WARNING,
+                        &format!("could not tell lbm_proc to stop: {source}"),
+                    )?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn summary(&mut self, end: &RunEnd) -> RunSummary {
+        summary(self, end)
+    }
+
+    fn cannot_write(path: &Path, source: std::io::Error) -> RunError {
+        RunError::Io { path: path.to_path_buf(), source }
+    }
+}
+
+/// The run's summary: fronts, runouts, deposit, the DEM's details.
+fn summary(r: &mut DemRun<'_, '_>, end: &RunEnd) -> RunSummary {
+    let (scene, setup, world, rep) = (r.scene, &r.setup, &r.world, &r.packing);
+    let (x0, l0) = (scene.spec.domain.min[0], scene.spec.analysis.column_length);
+    let wall = end.wall;
+    let front = std::mem::take(&mut r.front);
     let final_front = front.all.last().map(|f: &FrontSample| f.x).unwrap_or(f64::NAN);
     let final_connected = front.connected.last().map(|f: &FrontSample| f.x_norm);
     let bin = scene.spec.analysis.deposit_bin.unwrap_or(setup.max_diameter);
@@ -410,10 +429,10 @@ pub fn run(
     let g = &world.grains;
     let deposit = deposit_profile((0..g.len()).map(|p| (g.pos[p][0], g.pos[p][2] + g.radius[p])), x0, bin, max_bins);
     let particle_steps = world.step_count as f64 * world.len() as f64;
-    let summary = RunSummary {
+    RunSummary {
         scene: scene.spec.scene.name.clone(),
-        method: if hydro.is_some() { "dem_lbm" } else { "dem" }.into(),
-        status,
+        method: if r.hydro.is_some() { "dem_lbm" } else { "dem" }.into(),
+        status: end.status,
         sim_time: world.time,
         wall_seconds: wall,
         steps: world.step_count,
@@ -423,7 +442,7 @@ pub fn run(
             point_updates_per_s: None,
             wall_per_sim_second: wall / world.time.max(1e-12),
         },
-        t_ref,
+        t_ref: scene.reference_time(),
         front: front.all,
         runout: (final_front - x0 - l0) / l0,
         runout_pile: front.pile.last().map(|f| f.x_norm),
@@ -434,7 +453,7 @@ pub fn run(
         porosity_initial: rep.porosity_bulk,
         dem: Some(DemDetails {
             particles: world.len(),
-            time_step: dt,
+            time_step: setup.numerics.dt,
             damping_ratio: setup.grain_law.damping_ratio,
             restitution: scene.dem().restitution,
             contact_duration: setup.contact_duration,
@@ -443,9 +462,9 @@ pub fn run(
             initial_height: rep.height,
             packing_from_cache: rep.from_cache,
             deposition_seconds: if rep.from_cache { 0.0 } else { rep.deposition_seconds },
-            coordination_initial,
+            coordination_initial: r.coordination_initial,
             coordination_final: world.mean_coordination(),
-            recording_fraction: frames.seconds / wall.max(1e-9),
+            recording_fraction: end.recording_seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),
             stage_seconds: schemas::summary::stage_seconds_map(&world.stage_seconds),
         }),
@@ -453,7 +472,7 @@ pub fn run(
         lbm: None,
         mpm: None,
         wall_seconds_total: None,
-        exchange: hydro.as_ref().map(|h| ExchangeDetails {
+        exchange: r.hydro.as_ref().map(|h| ExchangeDetails {
             schedule: h.schedule.name().into(),
             ratio: h.ratio as u32,
             exchanges: h.exchanges,
@@ -462,20 +481,6 @@ pub fn run(
             kernel_seconds: 0.0,
             forcing_gain: None,
         }),
-    };
-    let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
-    frames.log(
-        world.time,
-        log_level::INFO,
-        &format!("run {status}: t = {:.4} s, runout {:.4}", world.time, summary.runout),
-    )?;
-    if let Some(rec) = frames.recorder.take() {
-        rec.finish_with_summary(json.clone())?;
-    }
-    std::fs::write(&summary_path, json).map_err(|source| RunError::Io { path: summary_path.clone(), source })?;
-    match failure {
-        Some(e) => Err(e),
-        None => Ok(summary),
     }
 }
 
@@ -532,16 +537,9 @@ struct Fronts {
     bins: Vec<f64>,
 }
 
-fn record_frame(
-    frames: &mut Frames,
-    world: &World,
-    scene: &Scene,
-    t_ref: f64,
-    front: &mut Fronts,
-    rate: f64,
-    with_state: bool,
-) -> Result<f64, RecordError> {
-    let started = Instant::now();
+fn record_frame(r: &mut DemRun<'_, '_>, rec: &mut Recording, rate: f64) -> Result<f64, RecordError> {
+    let (world, scene, front) = (&r.world, r.scene, &mut r.front);
+    let t_ref = scene.reference_time();
     let g = &world.grains;
     let t = world.time;
     let x0 = scene.spec.domain.min[0];
@@ -549,11 +547,11 @@ fn record_frame(
     let fx = front_position(
         (0..g.len()).map(|p| (g.pos[p][0] + g.radius[p], g.mass[p])),
         scene.spec.analysis.front_mass_fraction,
-        &mut frames.scratch,
+        &mut r.scratch,
     );
     let fraction = scene.spec.analysis.front_mass_fraction;
     let touching = (0..g.len()).filter(|&p| world.coordination[p] > 0);
-    let fc = front_position(touching.map(|p| (g.pos[p][0] + g.radius[p], g.mass[p])), fraction, &mut frames.scratch);
+    let fc = front_position(touching.map(|p| (g.pos[p][0] + g.radius[p], g.mass[p])), fraction, &mut r.scratch);
     let sample = FrontSample { t, t_norm: t / t_ref, x: fx, x_norm: (fx - x0 - l0) / l0 };
     let connected = FrontSample { t, t_norm: t / t_ref, x: fc, x_norm: (fc - x0 - l0) / l0 };
     let volume = |p: usize| 4.0 / 3.0 * std::f64::consts::PI * g.radius[p].powi(3);
@@ -571,7 +569,7 @@ fn record_frame(
     front.pile.push(FrontSample { t, t_norm: t / t_ref, x: pile_x, x_norm: (pile_x - x0 - l0) / l0 });
     let max_speed = world.max_speed();
 
-    if let (Some(rec), Some(ch)) = (frames.recorder.as_mut(), frames.channels.as_ref()) {
+    if let (Some(rec), Some(ch)) = (rec.recorder(), r.channels.as_ref()) {
         const STRIDE: usize = 24;
         let mut data = Vec::with_capacity(g.len() * STRIDE);
         for p in 0..g.len() {
@@ -652,10 +650,6 @@ fn record_frame(
             fluid_impulse_z: world.external_impulse[2],
         };
         rec.log(ch.metrics, t, &metrics)?;
-        if with_state {
-            rec.log_bytes(ch.state, t, DemState::capture(world).encode())?;
-        }
     }
-    frames.seconds += started.elapsed().as_secs_f64();
     Ok(max_speed)
 }
