@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use clap::{Parser, Subcommand};
 
-use dem_proc::run::{run, Progress, RunError};
-use runtime::process::{finish_run, progress_line, set_global_threads, start_run, RunArgs, RunOptions};
+use dem_proc::run::{run, RunError};
+use runtime::process::{exit_after_run, set_global_threads, start_run, Reporter, RunArgs, RunOptions};
 use runtime::{say, tell};
 use schemas::{Scene, EXIT_INTERRUPTED};
 
@@ -47,34 +47,6 @@ enum Command {
         #[arg(long, default_value_t = 20000)]
         steps: u64,
     },
-}
-
-struct Reporter {
-    json: bool,
-    started: Instant,
-}
-
-impl Progress for Reporter {
-    fn deposition(&mut self, t: f64, t_max: f64) {
-        if self.json {
-            say!("{}", progress_line("deposition", t, t_max, 0, self.started.elapsed().as_secs_f64()));
-        } else {
-            tell!("deposition: t = {t:.4} s");
-        }
-    }
-    fn collapse(&mut self, t: f64, t_end: f64, steps: u64) {
-        if self.json {
-            say!("{}", progress_line("collapse", t, t_end, steps, self.started.elapsed().as_secs_f64()));
-        } else {
-            tell!(
-                "collapse: t = {t:.4} / {t_end} s, {steps} steps, {:.1} s wall",
-                self.started.elapsed().as_secs_f64()
-            );
-        }
-    }
-    fn log(&mut self, message: &str) {
-        tell!("dem_proc: {message}");
-    }
 }
 
 fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
@@ -153,7 +125,7 @@ fn main() -> ExitCode {
                 Err(code) => return code,
             };
             let progress_json = args.progress_json;
-            let mut reporter = Reporter { json: progress_json, started: Instant::now() };
+            let mut reporter = Reporter::new("dem_proc", progress_json);
             let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs/dem"));
             let opts = RunOptions { out_dir, record: !args.no_record };
             // Coupled: connect once the packing has its grain count.
@@ -177,26 +149,11 @@ fn main() -> ExitCode {
                 })
             });
             match run(&scene, &opts, &stop, &mut reporter, connect) {
-                Ok(summary) => {
-                    tell!(
-                        "dem_proc: {} at t = {:.4} s after {} steps in {:.1} s ({:.3e} particle-steps/s); runout {:.4}",
-                        summary.status,
-                        summary.sim_time,
-                        summary.steps,
-                        summary.wall_seconds,
-                        summary.throughput.particle_steps_per_s.unwrap_or(0.0),
-                        summary.runout
-                    );
-                    finish_run(progress_json, summary.status)
-                }
                 Err(RunError::Packing(dem_proc::packing::PackingError::Interrupted)) => {
                     tell!("dem_proc: interrupted during deposition; nothing recorded");
                     ExitCode::from(EXIT_INTERRUPTED as u8)
                 }
-                Err(e) => {
-                    tell!("dem_proc: error: {e}");
-                    ExitCode::FAILURE
-                }
+                result => exit_after_run("dem_proc", progress_json, result),
             }
         }
     }

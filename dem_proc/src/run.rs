@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
 use runtime::exchange::LoadPeer;
 use runtime::metrics::{CouplingTimings, DemMetrics};
-use runtime::process::RunOptions;
+use runtime::process::{Progress, RunOptions};
 use runtime::record::{
     f32_field, identity_pose, identity_quaternion, log_level, timestamp, ChannelId, RecordError, RecorderBuilder,
 };
@@ -122,13 +122,6 @@ pub enum RunError {
     Io { path: PathBuf, source: std::io::Error },
     #[error("exchange with lbm_proc failed at t = {t:.5} s: {source}")]
     Peer { t: f64, source: runtime::exchange::PeerError },
-}
-
-/// How the run reports progress to whoever launched it.
-pub trait Progress {
-    fn deposition(&mut self, t: f64, t_max: f64);
-    fn collapse(&mut self, t: f64, t_end: f64, steps: u64);
-    fn log(&mut self, message: &str);
 }
 
 struct Channels {
@@ -252,7 +245,7 @@ pub fn run(
         cadence,
         RestRule::of(out),
         stop,
-        &mut |t, steps| progress.collapse(t, end_time, steps),
+        &mut |t, steps| progress.phase("collapse", t, end_time, steps),
         &summary_path,
     )
 }
@@ -280,7 +273,7 @@ fn prepare_packing(
         setup.numerics.dt,
         setup.steps_per_contact
     ));
-    let packing = packing::build(scene, setup, stop, |t, tmax| progress.deposition(t, tmax))?;
+    let packing = packing::build(scene, setup, stop, |t, tmax| progress.phase("deposition", t, tmax, 0))?;
     let rep = &packing.report;
     note(
         progress,

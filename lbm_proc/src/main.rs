@@ -8,9 +8,9 @@ use clap::{Parser, Subcommand};
 
 use lbm_proc::bench::{bulk_mlups, bytes_per_update, triad_bandwidth};
 use lbm_proc::fluid::{Collision, FluidParams};
-use lbm_proc::run::{initial_fluid, run, Progress};
+use lbm_proc::run::{initial_fluid, run};
 use lbm_proc::setup::LbmSetup;
-use runtime::process::{finish_run, progress_line, start_run, RunArgs, RunOptions};
+use runtime::process::{exit_after_run, start_run, Reporter, RunArgs, RunOptions};
 use runtime::{say, tell};
 use schemas::Scene;
 
@@ -40,25 +40,6 @@ enum Command {
         #[arg(long, default_value_t = 200)]
         steps: u64,
     },
-}
-
-struct Reporter {
-    json: bool,
-    started: Instant,
-}
-
-impl Progress for Reporter {
-    fn flow(&mut self, t: f64, t_end: f64, steps: u64) {
-        let wall = self.started.elapsed().as_secs_f64();
-        if self.json {
-            say!("{}", progress_line("flow", t, t_end, steps, wall));
-        } else {
-            tell!("flow: t = {t:.4} / {t_end} s, {steps} steps, {wall:.1} s wall");
-        }
-    }
-    fn log(&mut self, message: &str) {
-        tell!("lbm_proc: {message}");
-    }
 }
 
 fn load_scene(path: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
@@ -146,7 +127,7 @@ fn main() -> ExitCode {
                 Err(code) => return code,
             };
             let progress_json = args.progress_json;
-            let mut reporter = Reporter { json: progress_json, started: Instant::now() };
+            let mut reporter = Reporter::new("lbm_proc", progress_json);
             let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs/lbm"));
             let opts = RunOptions { out_dir, record: !args.no_record };
             let mut link = match runtime::process::link_config("lbm_proc", &args, &scene, &stop, 0) {
@@ -180,24 +161,7 @@ fn main() -> ExitCode {
                 (None, Some(r)) => Some(r as &mut dyn runtime::exchange::StatePeer),
                 (None, None) => None,
             };
-            match run(&scene, &opts, &stop, &mut reporter, peer) {
-                Ok(summary) => {
-                    let front = summary.liquid_front.last().map(|f| f.x_norm).unwrap_or(f64::NAN);
-                    tell!(
-                        "lbm_proc: {} at t = {:.4} s after {} steps in {:.1} s ({:.1} MLUPS); liquid front {front:.4}",
-                        summary.status,
-                        summary.sim_time,
-                        summary.steps,
-                        summary.wall_seconds,
-                        summary.throughput.cell_updates_per_s.unwrap_or(0.0) / 1e6,
-                    );
-                    finish_run(progress_json, summary.status)
-                }
-                Err(e) => {
-                    tell!("lbm_proc: error: {e}");
-                    ExitCode::FAILURE
-                }
-            }
+            exit_after_run("lbm_proc", progress_json, run(&scene, &opts, &stop, &mut reporter, peer))
         }
     }
 }

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
 use runtime::exchange::{ExchangeHeader, ParticleState, StatePeer, FLAG_STOPPING};
 use runtime::metrics::{CouplingTimings, LbmMetrics};
-use runtime::process::RunOptions;
+use runtime::process::{Progress, RunOptions};
 use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError, RecorderBuilder};
 use schemas::measures::{front_position, FrontSample};
 use schemas::scene::Scene;
@@ -81,12 +81,6 @@ pub enum RunError {
     Peer { exchange: u64, source: runtime::exchange::PeerError },
     #[error("cannot write {path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
-}
-
-/// How the run reports progress to whoever launched it.
-pub trait Progress {
-    fn flow(&mut self, t: f64, t_end: f64, steps: u64);
-    fn log(&mut self, message: &str);
 }
 
 /// Where `lbm_proc` writes its recording and its summary.
@@ -228,7 +222,7 @@ pub fn run(
         cadence,
         RestRule::of(out),
         stop,
-        &mut |t, steps| progress.flow(t, end_time, steps),
+        &mut |t, steps| progress.phase("flow", t, end_time, steps),
         &summary_path,
     )
 }

@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use clap::{Parser, Subcommand};
 
-use mpm_proc::run::{gravity_phase, run, Progress};
-use runtime::process::{finish_run, progress_line, set_global_threads, start_run, RunArgs, RunOptions};
+use mpm_proc::run::{gravity_phase, run};
+use runtime::process::{exit_after_run, set_global_threads, start_run, Reporter, RunArgs, RunOptions};
 use runtime::{say, tell};
 use schemas::{Method, Scene};
 
@@ -36,34 +36,6 @@ enum Command {
     },
 }
 
-struct Reporter {
-    json: bool,
-    started: Instant,
-}
-
-impl Progress for Reporter {
-    fn gravity_phase(&mut self, t: f64, t_max: f64) {
-        if self.json {
-            say!("{}", progress_line("gravity_phase", t, t_max, 0, self.started.elapsed().as_secs_f64()));
-        } else {
-            tell!("gravity phase: t = {t:.4} s");
-        }
-    }
-    fn collapse(&mut self, t: f64, t_end: f64, steps: u64) {
-        if self.json {
-            say!("{}", progress_line("collapse", t, t_end, steps, self.started.elapsed().as_secs_f64()));
-        } else {
-            tell!(
-                "collapse: t = {t:.4} / {t_end} s, {steps} steps, {:.1} s wall",
-                self.started.elapsed().as_secs_f64()
-            );
-        }
-    }
-    fn log(&mut self, message: &str) {
-        tell!("mpm_proc: {message}");
-    }
-}
-
 fn not_mpm(scene: &Scene) -> Option<String> {
     (scene.method() != Method::Mpm).then(|| {
         "the scene does not select the MPM: set `method = \"mpm\"` in [scene], or run `coupler run --method mpm SCENE`"
@@ -82,7 +54,7 @@ fn main() -> ExitCode {
                     tell!("mpm_proc: {e}");
                     ExitCode::FAILURE
                 })?;
-                let mut reporter = Reporter { json: false, started: Instant::now() };
+                let mut reporter = Reporter::new("mpm_proc", false);
                 gravity_phase(&scene, &mut setup.mpm, &AtomicBool::new(false), &mut reporter);
                 let mpm = &mut setup.mpm;
                 for g in 0..setup.gates.len() {
@@ -119,27 +91,10 @@ fn main() -> ExitCode {
                 tell!("mpm_proc: --run-id is for coupled DEM-LBM runs; the MPM runs alone");
                 return ExitCode::from(schemas::EXIT_BAD_SCENE as u8);
             }
-            let mut reporter = Reporter { json: args.progress_json, started: Instant::now() };
+            let mut reporter = Reporter::new("mpm_proc", args.progress_json);
             let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs/mpm"));
             let opts = RunOptions { out_dir, record: !args.no_record };
-            match run(&scene, &opts, &stop, &mut reporter) {
-                Ok(summary) => {
-                    tell!(
-                        "mpm_proc: {} at t = {:.4} s after {} steps in {:.1} s ({:.3e} point-updates/s); runout {:.4}",
-                        summary.status,
-                        summary.sim_time,
-                        summary.steps,
-                        summary.wall_seconds,
-                        summary.throughput.point_updates_per_s.unwrap_or(0.0),
-                        summary.runout
-                    );
-                    finish_run(args.progress_json, summary.status)
-                }
-                Err(e) => {
-                    tell!("mpm_proc: error: {e}");
-                    ExitCode::FAILURE
-                }
-            }
+            exit_after_run("mpm_proc", args.progress_json, run(&scene, &opts, &stop, &mut reporter))
         }
     }
 }

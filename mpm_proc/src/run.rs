@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::plan::SceneMpm;
 use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
 use runtime::metrics::MpmMetrics;
-use runtime::process::RunOptions;
+use runtime::process::{Progress, RunOptions};
 use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError, RecorderBuilder};
 use schemas::measures::{deposit_profile, front_position, FrontSample};
 use schemas::scene::{InitialStress, Scene};
@@ -72,13 +72,6 @@ pub enum RunError {
     Io { path: PathBuf, source: std::io::Error },
 }
 
-/// How the run reports progress to whoever launched it.
-pub trait Progress {
-    fn gravity_phase(&mut self, t: f64, t_max: f64);
-    fn collapse(&mut self, t: f64, t_end: f64, steps: u64);
-    fn log(&mut self, message: &str);
-}
-
 /// Where `mpm_proc` writes its recording and its summary.
 pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
     (out_dir.join("mpm.mcap"), out_dir.join("mpm_summary.json"))
@@ -121,7 +114,7 @@ pub fn gravity_phase(scene: &Scene, mpm: &mut Mpm, stop: &AtomicBool, progress: 
                 break;
             }
             if last_progress.elapsed().as_secs_f64() > 0.5 {
-                progress.gravity_phase(mpm.state.time, spec.gravity_phase_max_time);
+                progress.phase("gravity_phase", mpm.state.time, spec.gravity_phase_max_time, phase.steps);
                 last_progress = Instant::now();
             }
         }
@@ -305,7 +298,7 @@ fn run_on_pool(
         cadence,
         RestRule::of(out),
         stop,
-        &mut |t, steps| progress.collapse(t, end_time, steps),
+        &mut |t, steps| progress.phase("collapse", t, end_time, steps),
         &summary_path,
     )
 }

@@ -55,6 +55,95 @@ pub fn progress_line(phase: &str, t: f64, t_end: f64, steps: u64, wall: f64) -> 
     )
 }
 
+/// How a run reports progress to whoever launched it.
+pub trait Progress {
+    /// Phase `phase` (`deposition`, `gravity_phase`, `collapse`, `flow`) is
+    /// at simulated time `t` of `t_end` s after `steps` steps.
+    fn phase(&mut self, phase: &str, t: f64, t_end: f64, steps: u64);
+    /// A note for the user (set-up figures, warnings).
+    fn log(&mut self, message: &str);
+}
+
+/// A solver process's progress: `--progress-json` lines on stdout for
+/// `coupler` ([`progress_line`]), or readable lines on stderr.
+#[derive(Debug)]
+pub struct Reporter {
+    solver: &'static str,
+    json: bool,
+    started: std::time::Instant,
+}
+
+impl Reporter {
+    pub fn new(solver: &'static str, json: bool) -> Self {
+        Self { solver, json, started: std::time::Instant::now() }
+    }
+}
+
+impl Progress for Reporter {
+    fn phase(&mut self, phase: &str, t: f64, t_end: f64, steps: u64) {
+        let wall = self.started.elapsed().as_secs_f64();
+        if self.json {
+            say!("{}", progress_line(phase, t, t_end, steps, wall));
+        } else {
+            let name = phase.replace('_', " ");
+            tell!("{name}: t = {t:.4} / {t_end} s, {steps} steps, {wall:.1} s wall");
+        }
+    }
+    fn log(&mut self, message: &str) {
+        tell!("{}: {message}", self.solver);
+    }
+}
+
+/// Progress that says nothing (tests, in-process drivers).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Quiet;
+
+impl Progress for Quiet {
+    fn phase(&mut self, _phase: &str, _t: f64, _t_end: f64, _steps: u64) {}
+    fn log(&mut self, _message: &str) {}
+}
+
+/// The line a solver process ends a run with: status, time, steps, wall
+/// time, throughput in the solver's unit, and the runout (the liquid
+/// front for the liquid alone).
+pub fn summary_line(solver: &str, s: &schemas::summary::RunSummary) -> String {
+    let tp = &s.throughput;
+    let rate = match (tp.particle_steps_per_s, tp.cell_updates_per_s, tp.point_updates_per_s) {
+        (Some(r), _, _) => format!("{r:.3e} particle-steps/s"),
+        (_, Some(r), _) => format!("{:.1} MLUPS", r / 1e6),
+        (_, _, Some(r)) => format!("{r:.3e} point-updates/s"),
+        _ => String::from("no throughput"),
+    };
+    let reach = if s.runout.is_finite() {
+        format!("runout {:.4}", s.runout)
+    } else {
+        format!("liquid front {:.4}", s.liquid_front.last().map_or(f64::NAN, |f| f.x_norm))
+    };
+    format!(
+        "{solver}: {} at t = {:.4} s after {} steps in {:.1} s ({rate}); {reach}",
+        s.status, s.sim_time, s.steps, s.wall_seconds
+    )
+}
+
+/// Ends a solver process after its run: the summary line and
+/// [`finish_run`], or the error (exit status 1).
+pub fn exit_after_run<E: std::fmt::Display>(
+    solver: &str,
+    progress_json: bool,
+    result: Result<schemas::summary::RunSummary, E>,
+) -> std::process::ExitCode {
+    match result {
+        Ok(summary) => {
+            tell!("{}", summary_line(solver, &summary));
+            finish_run(progress_json, summary.status)
+        }
+        Err(e) => {
+            tell!("{solver}: error: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
 /// The arguments of every solver's `run` subcommand (what `coupler` passes).
 #[derive(Debug, Clone, clap::Args)]
 pub struct RunArgs {

@@ -113,20 +113,6 @@ pub fn coupler_run(name: &str, scene: &str, extra: &[&str]) -> PathBuf {
     out
 }
 
-/// Progress sink of the in-process driver: says nothing.
-struct Quiet;
-
-impl dem_proc::run::Progress for Quiet {
-    fn deposition(&mut self, _t: f64, _t_max: f64) {}
-    fn collapse(&mut self, _t: f64, _t_end: f64, _steps: u64) {}
-    fn log(&mut self, _message: &str) {}
-}
-
-impl lbm_proc::run::Progress for Quiet {
-    fn flow(&mut self, _t: f64, _t_end: f64, _steps: u64) {}
-    fn log(&mut self, _message: &str) {}
-}
-
 /// The test-only in-process driver: `dem_proc::run::run` and
 /// `lbm_proc::run::run`, the same functions the two binaries call, on two
 /// threads of this process exchanging over in-memory channels
@@ -144,13 +130,13 @@ pub fn run_coupled_in_process(
     std::thread::scope(|s| {
         let lbm = s.spawn(|| {
             let mut end = lbm_end;
-            let r = lbm_proc::run::run(&scene, &opts, &stop, &mut Quiet, Some(&mut end));
+            let r = lbm_proc::run::run(&scene, &opts, &stop, &mut runtime::process::Quiet, Some(&mut end));
             drop(end);
             r
         });
         let connect: dem_proc::hydro::Connect =
             Box::new(move |_| Ok(Box::new(dem_end) as Box<dyn runtime::exchange::LoadPeer>));
-        let dem = dem_proc::run::run(&scene, &opts, &stop, &mut Quiet, Some(connect));
+        let dem = dem_proc::run::run(&scene, &opts, &stop, &mut runtime::process::Quiet, Some(connect));
         let lbm = lbm.join().expect("LBM thread");
         (dem.expect("DEM run"), lbm.expect("LBM run"))
     })

@@ -1,18 +1,10 @@
 //! Scenes the MPM tests load from `scenes/validation/` or build from TOML
 //! text (validated like a user's file).
 
-use mpm_proc::run::Progress;
-use schemas::Scene;
-
 /// Progress that reports nothing (tests check numbers, not the log).
-#[allow(dead_code)] // not every test file runs a gravity phase
-pub struct Quiet;
-
-impl Progress for Quiet {
-    fn gravity_phase(&mut self, _: f64, _: f64) {}
-    fn collapse(&mut self, _: f64, _: f64, _: u64) {}
-    fn log(&mut self, _: &str) {}
-}
+#[allow(unused_imports)] // not every test file runs a gravity phase
+pub use runtime::process::Quiet;
+use schemas::Scene;
 
 /// The shipped scene `scenes/validation/NAME.toml` with `--set` overrides.
 #[allow(dead_code)] // not every test file loads one
