@@ -1,20 +1,17 @@
 //! A whole DEM run: packing, gate release, collapse to rest or end time, with
 //! recording and the measures of the summary.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
-use foxglove::schemas::{Color, Log, PointCloud, Pose, SceneEntity, SceneUpdate, SpherePrimitive, Vector3};
+use foxglove::schemas::{Color, PointCloud, Pose, SceneEntity, SceneUpdate, SpherePrimitive, Vector3};
 use serde::{Deserialize, Serialize};
 
 use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
 use runtime::exchange::LoadPeer;
 use runtime::metrics::{CouplingTimings, DemMetrics};
 use runtime::process::{Progress, RunOptions};
-use runtime::record::{
-    f32_field, identity_pose, identity_quaternion, log_level, timestamp, ChannelId, RecordError, RecorderBuilder,
-};
+use runtime::record::{f32_field, identity_pose, identity_quaternion, log_level, timestamp, ChannelId, RecordError};
 use schemas::measures::{coordination_shares, deposit_profile, front_position, pile_edge, FrontSample};
 use schemas::scene::Scene;
 use schemas::summary::{DemDetails, ExchangeDetails, RunStatus, RunSummary, Throughput};
@@ -173,30 +170,21 @@ pub fn run(
 
     std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
     let (mcap_path, summary_path) = output_paths(&opts.out_dir);
-    let (mut rec, channels) = if opts.record {
-        let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
-        let mut state_meta = BTreeMap::new();
-        state_meta.insert("encoding".into(), format!("bincode 2 (serde, standard config) of dem_proc::run::DemState version {STATE_VERSION}; see docs/recording.md"));
-        let channels = Channels {
+    let coupled = peer.is_some();
+    let (mut rec, channels) = Recording::open(opts.record, &mcap_path, "dem_proc", scene, 64, |b| {
+        Ok(Channels {
             particles: b.channel::<PointCloud>(topics::DEM_PARTICLES)?,
             spheres: if out.spheres { Some(b.channel::<SceneUpdate>(topics::DEM_SPHERES)?) } else { None },
             metrics: b.channel::<DemMetrics>(topics::DEM_METRICS)?,
-            state: b.raw_channel(topics::DEM_STATE, "bincode", state_meta)?,
-            coupling: if peer.is_some() { Some(b.channel::<CouplingTimings>(topics::DEM_COUPLING)?) } else { None },
-            received: if peer.is_some() && out.record_exchange {
-                let meta = BTreeMap::from([("encoding".to_string(), runtime::exchange::RECEIVED_ENCODING.to_string())]);
-                Some(b.raw_channel(topics::DEM_RECEIVED_LOADS, "sgf-exchange", meta)?)
+            state: b.state_channel(topics::DEM_STATE, "dem_proc::run::DemState", STATE_VERSION)?,
+            coupling: if coupled { Some(b.channel::<CouplingTimings>(topics::DEM_COUPLING)?) } else { None },
+            received: if coupled && out.record_exchange {
+                Some(b.received_channel(topics::DEM_RECEIVED_LOADS)?)
             } else {
                 None
             },
-        };
-        let log = b.channel::<Log>(topics::LOG)?;
-        let mut recorder = b.start(64);
-        recorder.scene(scene.to_toml())?;
-        (Recording::on(recorder, log, "dem_proc"), Some(channels))
-    } else {
-        (Recording::off("dem_proc"), None)
-    };
+        })
+    })?;
 
     let dt = setup.numerics.dt;
     let cadence = Cadence {

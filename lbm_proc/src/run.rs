@@ -1,19 +1,18 @@
 //! A whole fluid-only run: the scene on the lattice, gates released on time,
 //! the free-surface flow to the end time, recorded to MCAP, summarised.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
-use foxglove::schemas::{Grid, Log, PointCloud, Pose, Quaternion, Vector2, Vector3};
+use foxglove::schemas::{Grid, PointCloud, Pose, Quaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
 use runtime::exchange::{ExchangeHeader, ParticleState, StatePeer, FLAG_STOPPING};
 use runtime::metrics::{CouplingTimings, LbmMetrics};
 use runtime::process::{Progress, RunOptions};
-use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError, RecorderBuilder};
+use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError};
 use schemas::measures::{front_position, FrontSample};
 use schemas::scene::Scene;
 use schemas::summary::{ExchangeDetails, LbmDetails, RunStatus, RunSummary, Throughput};
@@ -144,33 +143,21 @@ pub fn run(
 
     std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
     let (mcap_path, summary_path) = output_paths(&opts.out_dir);
-    let (mut rec, channels) = if opts.record {
-        let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
-        let mut state_meta = BTreeMap::new();
-        state_meta.insert(
-            "encoding".into(),
-            format!("bincode 2 (serde, standard config) of lbm_proc::run::LbmState version {STATE_VERSION}; see docs/recording.md"),
-        );
-        let channels = Channels {
+    let coupled = peer.is_some();
+    let (mut rec, channels) = Recording::open(opts.record, &mcap_path, "lbm_proc", scene, 16, |b| {
+        Ok(Channels {
             surface: b.channel::<PointCloud>(topics::LBM_SURFACE)?,
             slice: b.channel::<Grid>(topics::LBM_SLICE)?,
             metrics: b.channel::<LbmMetrics>(topics::LBM_METRICS)?,
-            state: b.raw_channel(topics::LBM_STATE, "bincode", state_meta)?,
-            coupling: if peer.is_some() { Some(b.channel::<CouplingTimings>(topics::LBM_COUPLING)?) } else { None },
-            received: if peer.is_some() && scene.spec.output.record_exchange {
-                let meta = BTreeMap::from([("encoding".to_string(), runtime::exchange::RECEIVED_ENCODING.to_string())]);
-                Some(b.raw_channel(topics::LBM_RECEIVED_STATES, "sgf-exchange", meta)?)
+            state: b.state_channel(topics::LBM_STATE, "lbm_proc::run::LbmState", STATE_VERSION)?,
+            coupling: if coupled { Some(b.channel::<CouplingTimings>(topics::LBM_COUPLING)?) } else { None },
+            received: if coupled && out.record_exchange {
+                Some(b.received_channel(topics::LBM_RECEIVED_STATES)?)
             } else {
                 None
             },
-        };
-        let log = b.channel::<Log>(topics::LOG)?;
-        let mut recorder = b.start(16);
-        recorder.scene(scene.to_toml())?;
-        (Recording::on(recorder, log, "lbm_proc"), Some(channels))
-    } else {
-        (Recording::off("lbm_proc"), None)
-    };
+        })
+    })?;
     for note in &setup.notes {
         rec.log(0.0, log_level::INFO, note)?;
     }

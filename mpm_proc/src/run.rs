@@ -2,19 +2,18 @@
 //! released on time, the collapse to rest or the end time, recorded to
 //! MCAP and summarised.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use foxglove::schemas::{Log, PointCloud};
+use foxglove::schemas::PointCloud;
 use serde::{Deserialize, Serialize};
 
 use crate::plan::SceneMpm;
 use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
 use runtime::metrics::MpmMetrics;
 use runtime::process::{Progress, RunOptions};
-use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError, RecorderBuilder};
+use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError};
 use schemas::measures::{deposit_profile, front_position, FrontSample};
 use schemas::scene::{InitialStress, Scene};
 use schemas::summary::{MpmDetails, RunSummary, Throughput};
@@ -235,25 +234,14 @@ fn run_on_pool(
     let out = &scene.spec.output;
     std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
     let (mcap_path, summary_path) = output_paths(&opts.out_dir);
-    let (mut rec, channels) = if opts.record {
-        let mut b = RecorderBuilder::create(&mcap_path, 8 << 20)?;
-        let meta = BTreeMap::from([(
-            "encoding".to_string(),
-            format!("bincode 2 (serde, standard config) of mpm_proc::run::MpmStateRecord version {STATE_VERSION}; see docs/recording.md"),
-        )]);
-        let channels = Channels {
+    let (mut rec, channels) = Recording::open(opts.record, &mcap_path, "mpm_proc", scene, 16, |b| {
+        Ok(Channels {
             solid: b.channel::<PointCloud>(topics::MPM_SOLID)?,
             liquid: b.channel::<PointCloud>(topics::MPM_LIQUID)?,
             metrics: b.channel::<MpmMetrics>(topics::MPM_METRICS)?,
-            state: b.raw_channel(topics::MPM_STATE, "bincode", meta)?,
-        };
-        let log = b.channel::<Log>(topics::LOG)?;
-        let mut recorder = b.start(16);
-        recorder.scene(scene.to_toml())?;
-        (Recording::on(recorder, log, "mpm_proc"), Some(channels))
-    } else {
-        (Recording::off("mpm_proc"), None)
-    };
+            state: b.state_channel(topics::MPM_STATE, "mpm_proc::run::MpmStateRecord", STATE_VERSION)?,
+        })
+    })?;
     for n in &notes {
         rec.log(0.0, log_level::INFO, n)?;
     }

@@ -29,7 +29,7 @@ use std::time::Instant;
 
 use schemas::summary::{RunStatus, RunSummary};
 
-use crate::record::{log_entry, log_level, ChannelId, RecordError, Recorder};
+use crate::record::{log_entry, log_level, ChannelId, RecordError, Recorder, RecorderBuilder};
 
 /// A run's recording as the solver sees it: absent under `--no-record`.
 #[derive(Debug)]
@@ -50,6 +50,30 @@ impl Recording {
     /// Records into `recorder`, with `/log` entries named `source` on `log`.
     pub fn on(recorder: Recorder, log: ChannelId, source: &'static str) -> Self {
         Self { recorder: Some(recorder), log: Some(log), source, seconds: 0.0 }
+    }
+
+    /// The recording of a run: when `record`, creates `path`, lets
+    /// `channels` register the solver's channels, adds `/log` (entries
+    /// named `source`), starts the writer thread with `queue` frames of
+    /// slack and records the scene as run. Returns the solver's channels
+    /// alongside (None when not recording).
+    pub fn open<C>(
+        record: bool,
+        path: &Path,
+        source: &'static str,
+        scene: &schemas::Scene,
+        queue: usize,
+        channels: impl FnOnce(&mut RecorderBuilder) -> Result<C, RecordError>,
+    ) -> Result<(Self, Option<C>), RecordError> {
+        if !record {
+            return Ok((Self::off(source), None));
+        }
+        let mut b = RecorderBuilder::create(path, 8 << 20)?;
+        let solver_channels = channels(&mut b)?;
+        let log = b.channel::<foxglove::schemas::Log>(schemas::topics::LOG)?;
+        let mut recorder = b.start(queue);
+        recorder.scene(scene.to_toml())?;
+        Ok((Self::on(recorder, log, source), Some(solver_channels)))
     }
 
     /// The recorder, when recording.

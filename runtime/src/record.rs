@@ -87,6 +87,21 @@ impl RecorderBuilder {
         Ok(ChannelId(cid))
     }
 
+    /// A solver's full-state channel (`/…/state`): bincode of `type_path`
+    /// at layout `version`, described in the channel metadata.
+    pub fn state_channel(&mut self, topic: &str, type_path: &str, version: u32) -> Result<ChannelId, RecordError> {
+        let encoding =
+            format!("bincode 2 (serde, standard config) of {type_path} version {version}; see docs/recording.md");
+        self.raw_channel(topic, "bincode", BTreeMap::from([("encoding".to_string(), encoding)]))
+    }
+
+    /// A channel of received exchange messages (`output.record_exchange`),
+    /// in [`schemas::messages::RECEIVED_ENCODING`].
+    pub fn received_channel(&mut self, topic: &str) -> Result<ChannelId, RecordError> {
+        let encoding = schemas::messages::RECEIVED_ENCODING.to_string();
+        self.raw_channel(topic, "sgf-exchange", BTreeMap::from([("encoding".to_string(), encoding)]))
+    }
+
     /// Moves the writer to its own thread. `queue` frames may wait in memory.
     pub fn start(self, queue: usize) -> Recorder {
         let (tx, rx) = sync_channel(queue);
