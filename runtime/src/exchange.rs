@@ -9,8 +9,8 @@
 //! the transport cannot change a result.
 
 pub use schemas::messages::{
-    decode_loads, decode_states, encode_loads, encode_states, ExchangeHeader, HydroLoad, ParticleState, FLAG_STOPPING,
-    RECEIVED_ENCODING,
+    check_order, decode_loads, decode_states, encode_loads, encode_states, ExchangeHeader, HydroLoad, ParticleState,
+    FLAG_STOPPING, RECEIVED_ENCODING,
 };
 
 /// Why an exchange failed; the message names the cause and the fix.
@@ -57,15 +57,10 @@ pub struct MemoryLbmEnd {
     loads: std::sync::mpsc::Sender<(ExchangeHeader, Vec<HydroLoad>)>,
 }
 
-fn check_order(side: &str, expected: u64, header: &ExchangeHeader) -> Result<(), PeerError> {
-    if header.exchange != expected && !header.is_stopping() {
-        return Err(format!(
-            "{side} expected exchange {expected}, got {}: both processes must step the same scene in lockstep",
-            header.exchange
-        )
-        .into());
-    }
-    Ok(())
+/// [`schemas::messages::check_order`] for the in-process pair.
+fn in_order(side: &str, expected: u64, header: &ExchangeHeader) -> Result<(), PeerError> {
+    check_order(expected, header)
+        .map_err(|e| format!("{side}: {e}: both processes must step the same scene in lockstep").into())
 }
 
 impl LoadPeer for MemoryDemEnd {
@@ -75,7 +70,7 @@ impl LoadPeer for MemoryDemEnd {
     fn receive_loads(&mut self, exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError> {
         let (header, loads) =
             self.loads.recv().map_err(|_| PeerError::from("the LBM end of the in-process exchange is gone"))?;
-        check_order("DEM", exchange, &header)?;
+        in_order("DEM", exchange, &header)?;
         *out = loads;
         Ok(header)
     }
@@ -85,7 +80,7 @@ impl StatePeer for MemoryLbmEnd {
     fn receive_states(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError> {
         let (header, states) =
             self.states.recv().map_err(|_| PeerError::from("the DEM end of the in-process exchange is gone"))?;
-        check_order("LBM", exchange, &header)?;
+        in_order("LBM", exchange, &header)?;
         *out = states;
         Ok(header)
     }
@@ -145,15 +140,10 @@ pub fn recorded_messages(path: &std::path::Path, topic: &str) -> Result<Vec<Vec<
     Ok(out)
 }
 
+/// [`schemas::messages::check_order`] for a replayed recording.
 fn replay_order(side: &str, expected: u64, header: &ExchangeHeader) -> Result<(), PeerError> {
-    if header.exchange != expected && !header.is_stopping() {
-        return Err(format!(
-            "{side} replay expected exchange {expected}, the recording has {}: replay the scene, overrides and schedule the recording ran",
-            header.exchange
-        )
-        .into());
-    }
-    Ok(())
+    check_order(expected, header)
+        .map_err(|e| format!("{side} replay: {e}: replay the scene, overrides and schedule the recording ran").into())
 }
 
 /// The DEM's peer played back from a recording's `/dem/received_loads`: the

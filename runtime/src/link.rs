@@ -828,8 +828,8 @@ impl<Out: Message, In: Message> Link<Out, In> {
         if h.is_stopping() && payload.is_empty() {
             return Err(LinkError::PeerStopped { role: peer, exchange: expect });
         }
-        if h.exchange != expect {
-            return Err(LinkError::OutOfOrder { expected: expect, got: h.exchange, peer, call: In::SEND_CALL });
+        if let Err(e) = schemas::messages::check_order(expect, &h) {
+            return Err(LinkError::OutOfOrder { expected: e.expected, got: e.got, peer, call: In::SEND_CALL });
         }
         if payload.len() != self.particles || h.count as usize != payload.len() {
             return Err(LinkError::CountMismatch {

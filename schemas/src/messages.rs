@@ -84,6 +84,26 @@ impl ExchangeHeader {
     }
 }
 
+/// A message that arrived out of the exchange's order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("received exchange {got} while exchange {expected} was due")]
+pub struct OutOfOrder {
+    pub expected: u64,
+    pub got: u64,
+}
+
+/// The exchange's one order rule, which every transport applies to what it
+/// receives (the iceoryx2 link, the in-process pair, a replayed
+/// recording): a message taken while exchange `expected` is due carries
+/// that index, unless it is its sender's stop ([`FLAG_STOPPING`]), which
+/// may come at any exchange. Each transport words the fix for its case.
+pub fn check_order(expected: u64, header: &ExchangeHeader) -> Result<(), OutOfOrder> {
+    if header.exchange != expected && !header.is_stopping() {
+        return Err(OutOfOrder { expected, got: header.exchange });
+    }
+    Ok(())
+}
+
 /// Encoding of one received exchange message for the recording
 /// (`/dem/received_loads`, `/lbm/received_states`), little-endian, no
 /// padding: the header as `exchange` u64, `time` f64, `count` u32, `flags`
@@ -205,6 +225,15 @@ pub fn decode_states(bytes: &[u8]) -> Result<(ExchangeHeader, Vec<ParticleState>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn order_rule_takes_the_due_exchange_or_a_stop() {
+        let h = ExchangeHeader::new(4, 0.0);
+        assert_eq!(check_order(4, &h), Ok(()));
+        assert_eq!(check_order(5, &h), Err(OutOfOrder { expected: 5, got: 4 }));
+        assert_eq!(check_order(5, &h.stopping()), Ok(()), "a stop may come at any exchange");
+        assert_eq!(OutOfOrder { expected: 5, got: 4 }.to_string(), "received exchange 4 while exchange 5 was due");
+    }
 
     #[test]
     fn received_messages_round_trip_exactly() {
