@@ -94,6 +94,52 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         },
     };
 
+    let seeds = Seeds { n0, rho_s, rho_l, g_down, soil_region, liquid_region };
+    let (solid, liq, soil_top) = seed_points(&grid, &spec, &seeds);
+    let [row, _] = grid.node_dims();
+    let (base, contact) = fixities(&grid, &d.walls, &spec);
+    let mut gates = Vec::new();
+    let mut gate_nodes = Vec::new();
+    for gate in &s.gates {
+        let column = ((gate.point[0] - grid.origin[0]) / h).round() as usize + GHOST;
+        gate_nodes.push((GHOST..GHOST + elements[1] + 1).map(|r| r * row + column).collect());
+        gates.push((gate.name.clone(), gate.release_time));
+    }
+    let state = MpmState { time: 0.0, steps: 0, gates_held: vec![true; s.gates.len()], solid, liquid: liq };
+    let mut notes = describe(&spec, &grid, &state, dt, c_max);
+    if soil.is_some() && liquid.is_some() {
+        notes.push(format!(
+            "soil: n0 = {n0}, D = {grain} m, permeability {:.3e} m^2 (hydraulic conductivity {:.3e} m/s), quadratic drag {}",
+            params.drag.permeability(n0),
+            params.drag.hydraulic_conductivity(n0, g_down.abs()),
+            if spec.quadratic_drag { "on" } else { "off" }
+        ));
+    }
+    let mpm = Mpm::new(params, grid, state, Fixities { base, gates: gate_nodes, contact });
+    Ok(MpmSetup { mpm, gates, porosity_initial: n0, soil_top, notes })
+}
+
+/// What seeding the points needs to know of the two materials.
+#[derive(Clone, Copy)]
+struct Seeds {
+    /// Initial porosity of the soil (NaN without soil).
+    n0: f64,
+    /// Grain and liquid densities, kg/m³.
+    rho_s: f64,
+    rho_l: f64,
+    /// −g_z, m/s².
+    g_down: f64,
+    soil_region: Option<schemas::scene::BoxSpec>,
+    liquid_region: Option<schemas::scene::BoxSpec>,
+}
+
+/// The solid and liquid points, `mpm.points_per_element` per element whose
+/// centre lies in the soil or the liquid block, with the K0 stresses and
+/// hydrostatic pore pressures of `mpm.initial_stress = "k0"`; and the top
+/// of the soil, m (NaN without soil).
+fn seed_points(grid: &Grid, spec: &schemas::scene::MpmSpec, seeds: &Seeds) -> (SolidPoints, LiquidPoints, f64) {
+    let Seeds { n0, rho_s, rho_l, g_down, soil_region, liquid_region } = *seeds;
+    let (h, elements) = (grid.h, grid.elements);
     let (a, b) = spec.point_grid();
     let v0 = h * h / (a * b) as f64;
     let half = [h / (2.0 * a as f64), h / (2.0 * b as f64)];
@@ -155,9 +201,15 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         }
     }
 
-    // Fixities: ghost nodes fixed; a rough z_min wall fixed in both
-    // directions; the other walls (and a frictional floor) hold the normal
-    // velocity, with Coulomb friction on the solid where μ > 0.
+    (solid, liq, soil_top)
+}
+
+/// The nodes' fixities: ghost nodes fixed; a rough z_min wall fixed in
+/// both directions; the other walls (and a frictional floor) hold the
+/// normal velocity, with Coulomb friction on the solid where μ > 0.
+/// Returns the per-node free directions and the contact normals.
+fn fixities(grid: &Grid, walls: &[Face], spec: &schemas::scene::MpmSpec) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+    let elements = grid.elements;
     let [row, rows] = grid.node_dims();
     let mut base = vec![[1.0, 1.0]; row * rows];
     let mut contact = vec![[0.0, 0.0]; row * rows];
@@ -172,7 +224,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
                 continue;
             }
             let into = &mut contact[r * row + c];
-            for face in &d.walls {
+            for face in walls {
                 match face {
                     Face::XMin if i == 0 => (node[0], *into) = (0.0, [-1.0, 0.0]),
                     Face::XMax if i == nx => (node[0], *into) = (0.0, [1.0, 0.0]),
@@ -189,14 +241,13 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
             }
         }
     }
-    let mut gates = Vec::new();
-    let mut gate_nodes = Vec::new();
-    for gate in &s.gates {
-        let column = ((gate.point[0] - grid.origin[0]) / h).round() as usize + GHOST;
-        gate_nodes.push((GHOST..GHOST + elements[1] + 1).map(|r| r * row + column).collect());
-        gates.push((gate.name.clone(), gate.release_time));
-    }
-    let state = MpmState { time: 0.0, steps: 0, gates_held: vec![true; s.gates.len()], solid, liquid: liq };
+    (base, contact)
+}
+
+/// The log's first line: grid, shape functions, transfer, points, Δt.
+fn describe(spec: &schemas::scene::MpmSpec, grid: &Grid, state: &MpmState, dt: f64, c_max: f64) -> Vec<String> {
+    let (h, elements) = (grid.h, grid.elements);
+    let (a, b) = spec.point_grid();
     let mut notes = vec![format!(
         "grid {} x {} elements of {h} m ({:?} shape functions, {} transfer); {} solid and {} liquid points ({a} x {b} per element); dt = {dt:.3e} s (c_max = {c_max:.1} m/s, courant {})",
         elements[0],
@@ -215,15 +266,6 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         state.liquid.set.len(),
         spec.courant
     )];
-    notes.extend(schemas::scene::unused_flip_keys(&spec));
-    if soil.is_some() && liquid.is_some() {
-        notes.push(format!(
-            "soil: n0 = {n0}, D = {grain} m, permeability {:.3e} m^2 (hydraulic conductivity {:.3e} m/s), quadratic drag {}",
-            params.drag.permeability(n0),
-            params.drag.hydraulic_conductivity(n0, g_down.abs()),
-            if spec.quadratic_drag { "on" } else { "off" }
-        ));
-    }
-    let mpm = Mpm::new(params, grid, state, Fixities { base, gates: gate_nodes, contact });
-    Ok(MpmSetup { mpm, gates, porosity_initial: n0, soil_top, notes })
+    notes.extend(schemas::scene::unused_flip_keys(spec));
+    notes
 }
