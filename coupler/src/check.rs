@@ -213,7 +213,6 @@ const MPM_BYTES_PER_NODE_PHASE: f64 = 200.0;
 /// The MPM: grid, points, waves and Δt, soil model, drag, gravity phase.
 /// Computed from the scene by `mpm_proc::plan`, the closed forms the solver itself uses.
 fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
-    let s = &scene.spec;
     let m = scene.mpm();
     let grid = scene.mpm_grid();
     let h = grid.element_size;
@@ -228,6 +227,18 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
         grid.nodes(),
         m.shape_functions.name()
     );
+    let points = print_mpm_points(scene, ppe);
+    let ts = scene.mpm_time_step();
+    print_mpm_waves_and_cost(scene, &ts, points);
+    print_mpm_materials(scene, &ts, warnings);
+    mpm_numerics_warnings(scene, ppe, warnings);
+    print_mpm_boundaries(scene);
+}
+
+/// The soil's and the liquid's filled elements and points; returns the points of both phases.
+fn print_mpm_points(scene: &Scene, ppe: usize) -> usize {
+    let s = &scene.spec;
+    let grid = scene.mpm_grid();
     // Filled elements: the soil's and the liquid's regions in whole elements.
     let area = |r: &schemas::scene::BoxSpec| -> ((usize, usize), (usize, usize)) {
         (grid.span(0, r.min[0], r.max[0]), grid.span(2, r.min[2], r.max[2]))
@@ -265,7 +276,14 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
         };
         println!("liquid       {}: {liquid_elements} elements, {liquid_points} liquid points ({split})", liquid.name);
     }
-    let ts = scene.mpm_time_step();
+    soil_points + liquid_points
+}
+
+/// Wave speeds, the time step and the cost of the run.
+fn print_mpm_waves_and_cost(scene: &Scene, ts: &mpm::MpmTimeStep, points: usize) {
+    let (s, m) = (&scene.spec, scene.mpm());
+    let grid = scene.mpm_grid();
+    let h = grid.element_size;
     let speed = |c: Option<f64>| c.map(|c| format!("{c:.1} m/s")).unwrap_or_else(|| "–".into());
     println!(
         "waves        undrained P {}, liquid {}, dry P {}; fastest {:.1} m/s ({})",
@@ -283,7 +301,6 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
         ts.max_speed,
         ts.limiting.name()
     );
-    let points = soil_points + liquid_points;
     let gravity_steps = match m.initial_stress {
         InitialStress::K0 => (m.gravity_phase_max_time / ts.dt).ceil(),
         InitialStress::Zero => 0.0,
@@ -297,7 +314,11 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
             + grid.nodes() as f64 * 2.0 * MPM_BYTES_PER_NODE_PHASE)
             / 1e6
     );
+}
 
+/// The soil, liquid and drag models, with the warnings they call for.
+fn print_mpm_materials(scene: &Scene, ts: &mpm::MpmTimeStep, warnings: &mut Vec<String>) {
+    let (s, m) = (&scene.spec, scene.mpm());
     if !s.particles.is_empty() {
         let n0 = scene.mpm_porosity().unwrap_or(f64::NAN);
         println!(
@@ -370,6 +391,11 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
             ));
         }
     }
+}
+
+/// Warnings on the numerics: points per element, unused keys, the Courant number.
+fn mpm_numerics_warnings(scene: &Scene, ppe: usize, warnings: &mut Vec<String>) {
+    let (s, m) = (&scene.spec, scene.mpm());
     if !s.particles.is_empty() && !s.fluids.is_empty() && ppe < 4 {
         warnings.push(format!(
             "{ppe} points per element with two phases: the paper saw instabilities with 3 points per element (12 work; here 3 ran the saturated lab column stably, its runout 4 % from 12's, docs/mpm.md); raise mpm.points_per_element"
@@ -384,6 +410,11 @@ fn print_mpm(scene: &Scene, warnings: &mut Vec<String>) {
             m.courant
         ));
     }
+}
+
+/// The gravity phase, the boundaries and the transfer.
+fn print_mpm_boundaries(scene: &Scene) {
+    let (s, m) = (&scene.spec, scene.mpm());
     match m.initial_stress {
         InitialStress::K0 => println!(
             "gravity      K0 stresses{}, then a gravity phase with the gates held: damping {}, until the fastest point is slower than {} m/s or {} s",
