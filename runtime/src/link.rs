@@ -547,86 +547,19 @@ impl<Out: Message, In: Message> Link<Out, In> {
         }
         let run_id = cfg.run_id.as_str();
         let started = Instant::now();
-        let stopped = || cfg.stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed));
-
-        // iceoryx2 warns at Info that it runs without a config file (it
-        // needs none); IOX2_LOG_LEVEL still overrides.
-        set_log_level_from_env_or(LogLevel::Error);
-        let node_name = format!("sgf/{run_id}/{}", role.node_suffix());
-        let node = NodeBuilder::new()
-            .name(&NodeName::new(&node_name).map_err(transport("forming the node name"))?)
-            // Our processes handle SIGINT/SIGTERM themselves (signal_hook flag).
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<Ipc>()
-            .map_err(transport("creating the iceoryx2 node"))?;
-        // Shared memory of killed processes (ours or any other) would keep
-        // stale publishers and full segments around: remove it first.
-        node.try_cleanup_dead_nodes();
-        let us = node.id().value();
-        if let Some(pid) = alive_named(node.config(), &node_name, us) {
-            return Err(LinkError::RoleTaken { role, run_id: run_id.to_string(), pid });
-        }
-
-        // Handshake, stage 1: who is there, and do we agree?
-        let hello_service = node
-            .service_builder(&service_name(run_id, "hello")?)
-            .publish_subscribe::<Hello>()
-            .history_size(1)
-            .subscriber_max_buffer_size(HELLO_BUFFER)
-            .max_publishers(4)
-            .max_subscribers(4)
-            .open_or_create()
-            .map_err(transport("opening the hello service"))?;
-        let hello_sub = hello_service
-            .subscriber_builder()
-            .buffer_size(HELLO_BUFFER)
-            .create()
-            .map_err(transport("creating the hello subscriber"))?;
-        let hello_pub =
-            hello_service.publisher_builder().create().map_err(transport("creating the hello publisher"))?;
+        let node = create_node(run_id, role)?;
+        let hello_ports = HelloPorts::open(&node, run_id)?;
         let mut hello = Hello {
             protocol_version: cfg.protocol_version_override.unwrap_or(PROTOCOL_VERSION),
             role: role.code(),
             scene_hash: cfg.scene_hash,
             particles: cfg.particles as u64,
-            node_id: split_id(us),
+            node_id: split_id(node.id().value()),
             pid: std::process::id(),
             stage: 1,
         };
-        hello_pub.send_copy(hello).map_err(transport("publishing the hello"))?;
-
-        let peer: Hello = 'stage1: loop {
-            // Late subscribers get our hello from the history only when our
-            // publisher updates its connections.
-            hello_pub.update_connections().map_err(transport("delivering the hello"))?;
-            while let Some(sample) = hello_sub.receive().map_err(transport("receiving a hello"))? {
-                let h = *sample.payload();
-                if join_id(h.node_id) == us {
-                    continue;
-                }
-                if let Err(e) = check_hello(cfg, role, &h) {
-                    linger_rejected(&node, &hello_pub, &hello_sub, hello, &h, cfg, started);
-                    return Err(e);
-                }
-                // A rejecting hello that agrees with us refused a third process.
-                if h.stage != STAGE_REJECTED {
-                    break 'stage1 h;
-                }
-            }
-            if stopped() {
-                return Err(LinkError::Interrupted);
-            }
-            if started.elapsed() > cfg.connect_timeout {
-                return Err(LinkError::NoPeer {
-                    role: role.peer(),
-                    run_id: run_id.to_string(),
-                    waited: cfg.connect_timeout,
-                    others: alive_runs(node.config(), run_id),
-                });
-            }
-            std::thread::sleep(HANDSHAKE_POLL);
-        };
-        let mut peer_stage = peer.stage;
+        hello_ports.publisher.send_copy(hello).map_err(transport("publishing the hello"))?;
+        let peer = await_peer_hello(&node, &hello_ports, hello, cfg, role, started)?;
         let peer_node = join_id(peer.node_id);
 
         // 0 on one side: that side learns the count from the peer (the LBM
@@ -642,54 +575,10 @@ impl<Out: Message, In: Message> Link<Out, In> {
 
         // Stage 2: tell the peer our ports exist, wait until its ports exist.
         hello.stage = 2;
-        hello_pub.send_copy(hello).map_err(transport("publishing the hello"))?;
-        let mut last_check = Instant::now();
-        while peer_stage < 2 {
-            hello_pub.update_connections().map_err(transport("delivering the hello"))?;
-            while let Some(sample) = hello_sub.receive().map_err(transport("receiving a hello"))? {
-                let h = *sample.payload();
-                if join_id(h.node_id) != peer_node {
-                    continue;
-                }
-                if h.stage == STAGE_REJECTED {
-                    return Err(match check_hello(cfg, role, &h) {
-                        Err(e) => e,
-                        Ok(()) => LinkError::Transport(String::from(
-                            "handshaking: the peer refused this process after agreeing; start both again",
-                        )),
-                    });
-                }
-                peer_stage = peer_stage.max(h.stage);
-            }
-            if peer_stage >= 2 {
-                break;
-            }
-            if stopped() {
-                return Err(LinkError::Interrupted);
-            }
-            if last_check.elapsed() >= cfg.peer_check {
-                last_check = Instant::now();
-                if let Some(how) = gone(node.config(), peer_node) {
-                    return Err(LinkError::PeerDead {
-                        role: role.peer(),
-                        pid: peer.pid,
-                        run_id: run_id.to_string(),
-                        how,
-                    });
-                }
-            }
-            if started.elapsed() > cfg.connect_timeout {
-                return Err(LinkError::NoPeer {
-                    role: role.peer(),
-                    run_id: run_id.to_string(),
-                    waited: cfg.connect_timeout,
-                    others: alive_runs(node.config(), run_id),
-                });
-            }
-            std::thread::sleep(HANDSHAKE_POLL);
-        }
+        hello_ports.publisher.send_copy(hello).map_err(transport("publishing the hello"))?;
+        await_peer_ports(&node, &hello_ports, &peer, cfg, role, started)?;
         // A peer that read our stage 1 only from the history gets stage 2 the same way.
-        hello_pub.update_connections().map_err(transport("delivering the hello"))?;
+        hello_ports.publisher.update_connections().map_err(transport("delivering the hello"))?;
         // Connect to the peer's ports now that they exist: a message whose
         // publisher is gone before our first receive would otherwise be lost
         // (a peer that sends its last message and exits at once).
@@ -855,6 +744,158 @@ impl<Out: Message, In: Message> Link<Out, In> {
             }),
         }
     }
+}
+
+/// Node `sgf/<run_id>/<role>`, after removing what dead nodes left in
+/// shared memory; refuses to be a second process in the same role.
+fn create_node(run_id: &str, role: Role) -> Result<Node<Ipc>, LinkError> {
+    // iceoryx2 warns at Info that it runs without a config file (it
+    // needs none); IOX2_LOG_LEVEL still overrides.
+    set_log_level_from_env_or(LogLevel::Error);
+    let node_name = format!("sgf/{run_id}/{}", role.node_suffix());
+    let node = NodeBuilder::new()
+        .name(&NodeName::new(&node_name).map_err(transport("forming the node name"))?)
+        // Our processes handle SIGINT/SIGTERM themselves (signal_hook flag).
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<Ipc>()
+        .map_err(transport("creating the iceoryx2 node"))?;
+    // Shared memory of killed processes (ours or any other) would keep
+    // stale publishers and full segments around: remove it first.
+    node.try_cleanup_dead_nodes();
+    if let Some(pid) = alive_named(node.config(), &node_name, node.id().value()) {
+        return Err(LinkError::RoleTaken { role, run_id: run_id.to_string(), pid });
+    }
+    Ok(node)
+}
+
+/// The handshake's ports on `sgf/<run_id>/hello` (history 1, so a late
+/// peer still reads the last hello).
+struct HelloPorts {
+    publisher: Publisher<Ipc, Hello, ()>,
+    subscriber: Subscriber<Ipc, Hello, ()>,
+}
+
+impl HelloPorts {
+    fn open(node: &Node<Ipc>, run_id: &str) -> Result<Self, LinkError> {
+        let service = node
+            .service_builder(&service_name(run_id, "hello")?)
+            .publish_subscribe::<Hello>()
+            .history_size(1)
+            .subscriber_max_buffer_size(HELLO_BUFFER)
+            .max_publishers(4)
+            .max_subscribers(4)
+            .open_or_create()
+            .map_err(transport("opening the hello service"))?;
+        let subscriber = service
+            .subscriber_builder()
+            .buffer_size(HELLO_BUFFER)
+            .create()
+            .map_err(transport("creating the hello subscriber"))?;
+        let publisher = service.publisher_builder().create().map_err(transport("creating the hello publisher"))?;
+        Ok(Self { publisher, subscriber })
+    }
+}
+
+/// No peer answered within the connect timeout.
+fn no_peer(node: &Node<Ipc>, cfg: &LinkConfig, role: Role) -> LinkError {
+    LinkError::NoPeer {
+        role: role.peer(),
+        run_id: cfg.run_id.clone(),
+        waited: cfg.connect_timeout,
+        others: alive_runs(node.config(), &cfg.run_id),
+    }
+}
+
+/// Handshake stage 1: waits for a peer's hello that agrees with `ours`
+/// (protocol version, role, scene hash, grain count). A mismatch is
+/// announced to the peer before it is returned.
+fn await_peer_hello(
+    node: &Node<Ipc>,
+    ports: &HelloPorts,
+    ours: Hello,
+    cfg: &LinkConfig,
+    role: Role,
+    started: Instant,
+) -> Result<Hello, LinkError> {
+    let us = join_id(ours.node_id);
+    let stopped = || cfg.stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed));
+    loop {
+        // Late subscribers get our hello from the history only when our
+        // publisher updates its connections.
+        ports.publisher.update_connections().map_err(transport("delivering the hello"))?;
+        while let Some(sample) = ports.subscriber.receive().map_err(transport("receiving a hello"))? {
+            let h = *sample.payload();
+            if join_id(h.node_id) == us {
+                continue;
+            }
+            if let Err(e) = check_hello(cfg, role, &h) {
+                linger_rejected(node, &ports.publisher, &ports.subscriber, ours, &h, cfg, started);
+                return Err(e);
+            }
+            // A rejecting hello that agrees with us refused a third process.
+            if h.stage != STAGE_REJECTED {
+                return Ok(h);
+            }
+        }
+        if stopped() {
+            return Err(LinkError::Interrupted);
+        }
+        if started.elapsed() > cfg.connect_timeout {
+            return Err(no_peer(node, cfg, role));
+        }
+        std::thread::sleep(HANDSHAKE_POLL);
+    }
+}
+
+/// Handshake stage 2: waits until the peer says its data ports exist,
+/// watching our stop flag, the peer's liveness and the timeout.
+fn await_peer_ports(
+    node: &Node<Ipc>,
+    ports: &HelloPorts,
+    peer: &Hello,
+    cfg: &LinkConfig,
+    role: Role,
+    started: Instant,
+) -> Result<(), LinkError> {
+    let peer_node = join_id(peer.node_id);
+    let stopped = || cfg.stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed));
+    let mut peer_stage = peer.stage;
+    let mut last_check = Instant::now();
+    while peer_stage < 2 {
+        ports.publisher.update_connections().map_err(transport("delivering the hello"))?;
+        while let Some(sample) = ports.subscriber.receive().map_err(transport("receiving a hello"))? {
+            let h = *sample.payload();
+            if join_id(h.node_id) != peer_node {
+                continue;
+            }
+            if h.stage == STAGE_REJECTED {
+                return Err(match check_hello(cfg, role, &h) {
+                    Err(e) => e,
+                    Ok(()) => LinkError::Transport(String::from(
+                        "handshaking: the peer refused this process after agreeing; start both again",
+                    )),
+                });
+            }
+            peer_stage = peer_stage.max(h.stage);
+        }
+        if peer_stage >= 2 {
+            break;
+        }
+        if stopped() {
+            return Err(LinkError::Interrupted);
+        }
+        if last_check.elapsed() >= cfg.peer_check {
+            last_check = Instant::now();
+            if let Some(how) = gone(node.config(), peer_node) {
+                return Err(LinkError::PeerDead { role: role.peer(), pid: peer.pid, run_id: cfg.run_id.clone(), how });
+            }
+        }
+        if started.elapsed() > cfg.connect_timeout {
+            return Err(no_peer(node, cfg, role));
+        }
+        std::thread::sleep(HANDSHAKE_POLL);
+    }
+    Ok(())
 }
 
 /// After a mismatch: make sure the peer sees our hello before we go, so it
