@@ -1014,252 +1014,14 @@ impl Scene {
             v.fail("scene.name", format!("use letters, digits, '_' and '-' only, got {:?}", spec.scene.name));
         }
 
-        let d = &spec.domain;
-        for a in 0..3 {
-            v.finite(&format!("domain.min[{a}]"), d.min[a]);
-            v.finite(&format!("domain.max[{a}]"), d.max[a]);
-            v.finite(&format!("domain.gravity[{a}]"), d.gravity[a]);
-            if d.max[a] <= d.min[a] {
-                v.fail(
-                    &format!("domain.max[{a}]"),
-                    format!("must be > domain.min[{a}] = {}, got {}", d.min[a], d.max[a]),
-                );
-            }
-        }
-        for (i, f) in d.walls.iter().enumerate() {
-            if d.walls[..i].contains(f) {
-                v.fail("domain.walls", format!("face {} listed twice", f.name()));
-            }
-        }
-
-        if spec.gates.len() > 26 {
-            v.fail("gates", format!("at most 26 gates (32 walls with the box faces), got {}", spec.gates.len()));
-        }
-        let mut gate_normals = Vec::new();
-        for (g, gate) in spec.gates.iter().enumerate() {
-            let key = format!("gates[{g}]");
-            v.nonempty(&format!("{key}.name"), &gate.name);
-            v.finite_vec(&format!("{key}.point"), &gate.point);
-            v.finite_vec(&format!("{key}.normal"), &gate.normal);
-            let n = norm(gate.normal);
-            if n == 0.0 || !n.is_finite() {
-                v.fail(&format!("{key}.normal"), "must be a non-zero vector".into());
-                gate_normals.push([1.0, 0.0, 0.0]);
-            } else {
-                gate_normals.push([gate.normal[0] / n, gate.normal[1] / n, gate.normal[2] / n]);
-            }
-            v.at_least(&format!("{key}.release_time"), gate.release_time, 0.0);
-        }
-
-        let mut explicit_spheres = Vec::new();
-        for (b, block) in spec.particles.iter().enumerate() {
-            let key = format!("particles[{b}]");
-            v.nonempty(&format!("{key}.name"), &block.name);
-            v.positive(&format!("{key}.density"), block.density);
-            v.positive(&format!("{key}.diameter"), block.diameter);
-            v.in_range(&format!("{key}.diameter_spread"), block.diameter_spread, 0.0, 0.9);
-            let mut spheres = Vec::new();
-            match &block.packing {
-                PackingSpec::Deposit { region, porosity, count, .. } => {
-                    v.region(&format!("{key}.packing.region"), region, d);
-                    let d_max = block.diameter * (1.0 + block.diameter_spread);
-                    for a in 0..2 {
-                        let width = region.max[a] - region.min[a];
-                        if width < d_max {
-                            v.fail(
-                                &format!("{key}.packing.region"),
-                                format!("is {width} m wide along {}, narrower than the largest grain ({d_max} m); diameters are in metres", ["x", "y"][a]),
-                            );
-                        }
-                    }
-                    match (porosity, count) {
-                        (Some(_), Some(_)) | (None, None) => {
-                            v.fail(&format!("{key}.packing"), "give exactly one of `porosity` and `count`".into())
-                        }
-                        (Some(n), None) => v.open_range(&format!("{key}.packing.porosity"), *n, 0.25, 1.0),
-                        (None, Some(c)) => {
-                            if *c == 0 {
-                                v.fail(&format!("{key}.packing.count"), "must be > 0, got 0".into());
-                            }
-                        }
-                    }
-                }
-                PackingSpec::Explicit { spheres: inline, file, velocity } => {
-                    v.finite_vec(&format!("{key}.packing.velocity"), velocity);
-                    spheres.extend_from_slice(inline);
-                    if let Some(f) = file {
-                        let p = base_dir.join(f);
-                        match read_sphere_csv(&p) {
-                            Ok(s) => spheres.extend(s),
-                            Err(e) => v.fail(&format!("{key}.packing.file"), e),
-                        }
-                    }
-                    if spheres.is_empty() {
-                        v.fail(
-                            &format!("{key}.packing"),
-                            "an explicit packing needs `spheres` or `file` with at least one grain".into(),
-                        );
-                    }
-                    for (i, s) in spheres.iter().enumerate() {
-                        let k = format!("{key}.packing.spheres[{i}]");
-                        if s.iter().any(|x| !x.is_finite()) || s[3] <= 0.0 {
-                            v.fail(&k, format!("needs finite x, y, z and a diameter > 0, got {s:?}"));
-                        } else if (0..3).any(|a| s[a] < d.min[a] || s[a] > d.max[a]) {
-                            v.fail(&k, format!("centre {:?} lies outside the domain", &s[..3]));
-                        }
-                    }
-                }
-            }
-            explicit_spheres.push(spheres);
-        }
-
-        for (f, fluid) in spec.fluids.iter().enumerate() {
-            let key = format!("fluids[{f}]");
-            v.nonempty(&format!("{key}.name"), &fluid.name);
-            v.positive(&format!("{key}.density"), fluid.density);
-            v.positive(&format!("{key}.viscosity"), fluid.viscosity);
-            v.region(&format!("{key}.region"), &fluid.region, d);
-        }
-
+        check_domain(&mut v, &spec.domain);
+        let gate_normals = check_gates(&mut v, &spec.gates);
+        let explicit_spheres = check_particles(&mut v, &spec, base_dir);
         // The MPM reads neither [dem] nor [lbm]: one file can drive both
         // methods, and under `mpm` those tables are ignored, not checked.
-        let method = method_of(&spec);
-        let mpm = method == Method::Mpm;
-        if !mpm && !spec.particles.is_empty() && spec.dem.is_none() {
-            v.fail(
-                "dem",
-                "the scene has particle blocks, so it needs a [dem] table with the contact parameters".into(),
-            );
-        }
-        if let Some(dem) = spec.dem.as_ref().filter(|_| !mpm) {
-            v.positive("dem.normal_stiffness", dem.normal_stiffness);
-            v.in_range("dem.tangential_stiffness_ratio", dem.tangential_stiffness_ratio, 0.0, 1.0);
-            v.half_open("dem.restitution", dem.restitution, 0.0, 1.0);
-            v.at_least("dem.friction", dem.friction, 0.0);
-            v.at_least("dem.rolling_friction", dem.rolling_friction, 0.0);
-            if let Some(x) = dem.wall_friction {
-                v.at_least("dem.wall_friction", x, 0.0);
-            }
-            if let Some(x) = dem.wall_rolling_friction {
-                v.at_least("dem.wall_rolling_friction", x, 0.0);
-            }
-            if let Some(dt) = dem.time_step {
-                v.positive("dem.time_step", dt);
-            }
-            v.in_range("dem.steps_per_contact", dem.steps_per_contact, 5.0, 1e6);
-            v.in_range("dem.neighbour_skin", dem.neighbour_skin, 0.01, 2.0);
-        }
-
-        if !mpm && !spec.fluids.is_empty() && spec.lbm.is_none() {
-            v.fail(
-                "lbm",
-                "the scene has fluid blocks, so it needs an [lbm] table with at least `spacing` and `time_step`".into(),
-            );
-        }
-        if let Some(lbm) = spec.lbm.as_ref().filter(|_| !mpm) {
-            v.positive("lbm.spacing", lbm.spacing);
-            v.positive("lbm.time_step", lbm.time_step);
-            v.at_least("lbm.smagorinsky", lbm.smagorinsky, 0.0);
-            v.open_range("lbm.trt_magic", lbm.trt_magic, 0.0, 10.0);
-            v.open_range("lbm.mach_limit", lbm.mach_limit, 0.0, 1.0);
-            if lbm.hydrostatics == Hydrostatics::Buoyancy {
-                let fills = spec
-                    .fluids
-                    .iter()
-                    .any(|f| (0..3).all(|a| f.region.min[a] <= d.min[a] && f.region.max[a] >= d.max[a]));
-                let closed = Face::ALL.iter().all(|face| d.walls.contains(face));
-                if !fills || !closed || !spec.gates.is_empty() {
-                    v.fail(
-                        "lbm.hydrostatics",
-                        "\"buoyancy\" leaves the liquid's weight off the lattice, which holds only where liquid fills a closed box: give one fluid block the whole domain as its region, list all six faces in domain.walls and remove the gates, or use \"lattice\"".into(),
-                    );
-                }
-            }
-            if lbm.spacing > 0.0 && lbm.time_step > 0.0 {
-                for a in 0..3 {
-                    let cells = (d.max[a] - d.min[a]) / lbm.spacing;
-                    if cells.is_finite() && cells < 3.0 {
-                        v.fail(
-                            "lbm.spacing",
-                            format!(
-                                "leaves {cells:.1} cells along {} (at least 3 needed); lower it",
-                                ["x", "y", "z"][a]
-                            ),
-                        );
-                    }
-                }
-                let (lo, hi) = (d.min, d.max);
-                let cells: f64 = (0..3).map(|a| ((hi[a] - lo[a]) / lbm.spacing).ceil()).product();
-                if cells > 2e9 {
-                    v.fail(
-                        "lbm.spacing",
-                        format!("gives {cells:.3e} lattice cells in the domain (at most 2e9); raise it or shrink the domain"),
-                    );
-                }
-            }
-        }
-
-        let c = &spec.coupling;
-        if !(1..=10_000).contains(&c.ratio) {
-            v.fail("coupling.ratio", format!("must be between 1 and 10000 DEM steps per LBM step, got {}", c.ratio));
-        }
-        if let (Some(dem), Some(lbm)) = (&spec.dem, &spec.lbm) {
-            if !mpm && !spec.particles.is_empty() && !spec.fluids.is_empty() {
-                if let Some(dt) = dem.time_step {
-                    let coupled = lbm.time_step / c.ratio as f64;
-                    if (dt - coupled).abs() > 1e-9 * coupled {
-                        v.fail(
-                            "dem.time_step",
-                            format!(
-                                "a coupled scene takes its DEM step from lbm.time_step / coupling.ratio = {coupled:.6e} s, got {dt:.6e} s; remove dem.time_step or change coupling.ratio"
-                            ),
-                        );
-                    }
-                }
-            }
-        }
-
-        let dep = &spec.deposition;
-        v.at_least("deposition.friction", dep.friction, 0.0);
-        v.at_least("deposition.rolling_friction", dep.rolling_friction, 0.0);
-        v.positive("deposition.rest_speed", dep.rest_speed);
-        v.positive("deposition.max_time", dep.max_time);
-
-        let o = &spec.output;
-        v.positive("output.end_time", o.end_time);
-        v.positive("output.record_interval", o.record_interval);
-        if let Some(s) = o.state_interval {
-            v.positive("output.state_interval", s);
-        }
-        v.positive("output.rest_speed", o.rest_speed);
-        v.in_range("output.rest_fraction", o.rest_fraction, 0.0, 0.5);
-
-        let a = &spec.analysis;
-        v.positive("analysis.column_length", a.column_length);
-        v.positive("analysis.column_height", a.column_height);
-        v.open_range("analysis.front_mass_fraction", a.front_mass_fraction, 0.0, 0.5);
-        if let Some(b) = a.deposit_bin {
-            v.positive("analysis.deposit_bin", b);
-        }
-        if a.condition == Condition::Liquid && (spec.fluids.is_empty() || !spec.particles.is_empty()) {
-            v.fail(
-                "analysis.condition",
-                "`liquid` is for a column of liquid alone: [[fluids]] and no [[particles]]".into(),
-            );
-        }
-        if a.condition == Condition::Saturated && spec.fluids.is_empty() {
-            v.fail("analysis.condition", "`saturated` needs at least one [[fluids]] block".into());
-        }
-        if spec.particles.is_empty() && spec.fluids.is_empty() {
-            v.fail("", "the scene has neither [[particles]] nor [[fluids]]: nothing to simulate".into());
-        }
-        if !mpm
-            && norm(d.gravity) == 0.0
-            && spec.particles.iter().any(|p| matches!(p.packing, PackingSpec::Deposit { .. }))
-        {
-            v.fail("domain.gravity", "gravity deposition needs non-zero gravity".into());
-        }
-
+        let mpm = method_of(&spec) == Method::Mpm;
+        check_solver_tables(&mut v, &spec, mpm);
+        check_run_tables(&mut v, &spec, mpm);
         if let Some(m) = &spec.mpm {
             check_mpm_values(&mut v, m);
         }
@@ -1328,6 +1090,262 @@ impl Scene {
             }
         }
         toml::to_string_pretty(&spec).expect("scene spec serialises")
+    }
+}
+
+/// `[domain]`: finite bounds, max above min, each wall face once.
+fn check_domain(v: &mut Validator, d: &DomainSpec) {
+    for a in 0..3 {
+        v.finite(&format!("domain.min[{a}]"), d.min[a]);
+        v.finite(&format!("domain.max[{a}]"), d.max[a]);
+        v.finite(&format!("domain.gravity[{a}]"), d.gravity[a]);
+        if d.max[a] <= d.min[a] {
+            v.fail(&format!("domain.max[{a}]"), format!("must be > domain.min[{a}] = {}, got {}", d.min[a], d.max[a]));
+        }
+    }
+    for (i, f) in d.walls.iter().enumerate() {
+        if d.walls[..i].contains(f) {
+            v.fail("domain.walls", format!("face {} listed twice", f.name()));
+        }
+    }
+}
+
+/// `[[gates]]`: at most 26, named, finite, a non-zero normal (returned
+/// normalised, one per gate), a release time ≥ 0.
+fn check_gates(v: &mut Validator, gates: &[GateSpec]) -> Vec<[f64; 3]> {
+    if gates.len() > 26 {
+        v.fail("gates", format!("at most 26 gates (32 walls with the box faces), got {}", gates.len()));
+    }
+    let mut gate_normals = Vec::new();
+    for (g, gate) in gates.iter().enumerate() {
+        let key = format!("gates[{g}]");
+        v.nonempty(&format!("{key}.name"), &gate.name);
+        v.finite_vec(&format!("{key}.point"), &gate.point);
+        v.finite_vec(&format!("{key}.normal"), &gate.normal);
+        let n = norm(gate.normal);
+        if n == 0.0 || !n.is_finite() {
+            v.fail(&format!("{key}.normal"), "must be a non-zero vector".into());
+            gate_normals.push([1.0, 0.0, 0.0]);
+        } else {
+            gate_normals.push([gate.normal[0] / n, gate.normal[1] / n, gate.normal[2] / n]);
+        }
+        v.at_least(&format!("{key}.release_time"), gate.release_time, 0.0);
+    }
+
+    gate_normals
+}
+
+/// `[[particles]]`: material values and the packing, deposited in a region
+/// or explicit (inline or from a CSV beside the scene). Returns each
+/// block's explicit spheres (empty for deposits).
+fn check_particles(v: &mut Validator, spec: &SceneSpec, base_dir: &Path) -> Vec<Vec<[f64; 4]>> {
+    let d = &spec.domain;
+    let mut explicit_spheres = Vec::new();
+    for (b, block) in spec.particles.iter().enumerate() {
+        let key = format!("particles[{b}]");
+        v.nonempty(&format!("{key}.name"), &block.name);
+        v.positive(&format!("{key}.density"), block.density);
+        v.positive(&format!("{key}.diameter"), block.diameter);
+        v.in_range(&format!("{key}.diameter_spread"), block.diameter_spread, 0.0, 0.9);
+        let mut spheres = Vec::new();
+        match &block.packing {
+            PackingSpec::Deposit { region, porosity, count, .. } => {
+                v.region(&format!("{key}.packing.region"), region, d);
+                let d_max = block.diameter * (1.0 + block.diameter_spread);
+                for a in 0..2 {
+                    let width = region.max[a] - region.min[a];
+                    if width < d_max {
+                        v.fail(
+                            &format!("{key}.packing.region"),
+                            format!("is {width} m wide along {}, narrower than the largest grain ({d_max} m); diameters are in metres", ["x", "y"][a]),
+                        );
+                    }
+                }
+                match (porosity, count) {
+                    (Some(_), Some(_)) | (None, None) => {
+                        v.fail(&format!("{key}.packing"), "give exactly one of `porosity` and `count`".into())
+                    }
+                    (Some(n), None) => v.open_range(&format!("{key}.packing.porosity"), *n, 0.25, 1.0),
+                    (None, Some(c)) => {
+                        if *c == 0 {
+                            v.fail(&format!("{key}.packing.count"), "must be > 0, got 0".into());
+                        }
+                    }
+                }
+            }
+            PackingSpec::Explicit { spheres: inline, file, velocity } => {
+                v.finite_vec(&format!("{key}.packing.velocity"), velocity);
+                spheres.extend_from_slice(inline);
+                if let Some(f) = file {
+                    let p = base_dir.join(f);
+                    match read_sphere_csv(&p) {
+                        Ok(s) => spheres.extend(s),
+                        Err(e) => v.fail(&format!("{key}.packing.file"), e),
+                    }
+                }
+                if spheres.is_empty() {
+                    v.fail(
+                        &format!("{key}.packing"),
+                        "an explicit packing needs `spheres` or `file` with at least one grain".into(),
+                    );
+                }
+                for (i, s) in spheres.iter().enumerate() {
+                    let k = format!("{key}.packing.spheres[{i}]");
+                    if s.iter().any(|x| !x.is_finite()) || s[3] <= 0.0 {
+                        v.fail(&k, format!("needs finite x, y, z and a diameter > 0, got {s:?}"));
+                    } else if (0..3).any(|a| s[a] < d.min[a] || s[a] > d.max[a]) {
+                        v.fail(&k, format!("centre {:?} lies outside the domain", &s[..3]));
+                    }
+                }
+            }
+        }
+        explicit_spheres.push(spheres);
+    }
+
+    for (f, fluid) in spec.fluids.iter().enumerate() {
+        let key = format!("fluids[{f}]");
+        v.nonempty(&format!("{key}.name"), &fluid.name);
+        v.positive(&format!("{key}.density"), fluid.density);
+        v.positive(&format!("{key}.viscosity"), fluid.viscosity);
+        v.region(&format!("{key}.region"), &fluid.region, d);
+    }
+
+    explicit_spheres
+}
+
+/// `[[fluids]]`, `[dem]`, `[lbm]` and `[coupling]` (the last three only
+/// outside the MPM, which reads none of them).
+fn check_solver_tables(v: &mut Validator, spec: &SceneSpec, mpm: bool) {
+    let d = &spec.domain;
+    if !mpm && !spec.particles.is_empty() && spec.dem.is_none() {
+        v.fail("dem", "the scene has particle blocks, so it needs a [dem] table with the contact parameters".into());
+    }
+    if let Some(dem) = spec.dem.as_ref().filter(|_| !mpm) {
+        v.positive("dem.normal_stiffness", dem.normal_stiffness);
+        v.in_range("dem.tangential_stiffness_ratio", dem.tangential_stiffness_ratio, 0.0, 1.0);
+        v.half_open("dem.restitution", dem.restitution, 0.0, 1.0);
+        v.at_least("dem.friction", dem.friction, 0.0);
+        v.at_least("dem.rolling_friction", dem.rolling_friction, 0.0);
+        if let Some(x) = dem.wall_friction {
+            v.at_least("dem.wall_friction", x, 0.0);
+        }
+        if let Some(x) = dem.wall_rolling_friction {
+            v.at_least("dem.wall_rolling_friction", x, 0.0);
+        }
+        if let Some(dt) = dem.time_step {
+            v.positive("dem.time_step", dt);
+        }
+        v.in_range("dem.steps_per_contact", dem.steps_per_contact, 5.0, 1e6);
+        v.in_range("dem.neighbour_skin", dem.neighbour_skin, 0.01, 2.0);
+    }
+
+    if !mpm && !spec.fluids.is_empty() && spec.lbm.is_none() {
+        v.fail(
+            "lbm",
+            "the scene has fluid blocks, so it needs an [lbm] table with at least `spacing` and `time_step`".into(),
+        );
+    }
+    if let Some(lbm) = spec.lbm.as_ref().filter(|_| !mpm) {
+        v.positive("lbm.spacing", lbm.spacing);
+        v.positive("lbm.time_step", lbm.time_step);
+        v.at_least("lbm.smagorinsky", lbm.smagorinsky, 0.0);
+        v.open_range("lbm.trt_magic", lbm.trt_magic, 0.0, 10.0);
+        v.open_range("lbm.mach_limit", lbm.mach_limit, 0.0, 1.0);
+        if lbm.hydrostatics == Hydrostatics::Buoyancy {
+            let fills =
+                spec.fluids.iter().any(|f| (0..3).all(|a| f.region.min[a] <= d.min[a] && f.region.max[a] >= d.max[a]));
+            let closed = Face::ALL.iter().all(|face| d.walls.contains(face));
+            if !fills || !closed || !spec.gates.is_empty() {
+                v.fail(
+                    "lbm.hydrostatics",
+                    "\"buoyancy\" leaves the liquid's weight off the lattice, which holds only where liquid fills a closed box: give one fluid block the whole domain as its region, list all six faces in domain.walls and remove the gates, or use \"lattice\"".into(),
+                );
+            }
+        }
+        if lbm.spacing > 0.0 && lbm.time_step > 0.0 {
+            for a in 0..3 {
+                let cells = (d.max[a] - d.min[a]) / lbm.spacing;
+                if cells.is_finite() && cells < 3.0 {
+                    v.fail(
+                        "lbm.spacing",
+                        format!("leaves {cells:.1} cells along {} (at least 3 needed); lower it", ["x", "y", "z"][a]),
+                    );
+                }
+            }
+            let (lo, hi) = (d.min, d.max);
+            let cells: f64 = (0..3).map(|a| ((hi[a] - lo[a]) / lbm.spacing).ceil()).product();
+            if cells > 2e9 {
+                v.fail(
+                    "lbm.spacing",
+                    format!(
+                        "gives {cells:.3e} lattice cells in the domain (at most 2e9); raise it or shrink the domain"
+                    ),
+                );
+            }
+        }
+    }
+
+    let c = &spec.coupling;
+    if !(1..=10_000).contains(&c.ratio) {
+        v.fail("coupling.ratio", format!("must be between 1 and 10000 DEM steps per LBM step, got {}", c.ratio));
+    }
+    if let (Some(dem), Some(lbm)) = (&spec.dem, &spec.lbm) {
+        if !mpm && !spec.particles.is_empty() && !spec.fluids.is_empty() {
+            if let Some(dt) = dem.time_step {
+                let coupled = lbm.time_step / c.ratio as f64;
+                if (dt - coupled).abs() > 1e-9 * coupled {
+                    v.fail(
+                        "dem.time_step",
+                        format!(
+                            "a coupled scene takes its DEM step from lbm.time_step / coupling.ratio = {coupled:.6e} s, got {dt:.6e} s; remove dem.time_step or change coupling.ratio"
+                        ),
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// `[deposition]`, `[output]`, `[analysis]`, and the blocks a scene needs at all.
+fn check_run_tables(v: &mut Validator, spec: &SceneSpec, mpm: bool) {
+    let d = &spec.domain;
+    let dep = &spec.deposition;
+    v.at_least("deposition.friction", dep.friction, 0.0);
+    v.at_least("deposition.rolling_friction", dep.rolling_friction, 0.0);
+    v.positive("deposition.rest_speed", dep.rest_speed);
+    v.positive("deposition.max_time", dep.max_time);
+
+    let o = &spec.output;
+    v.positive("output.end_time", o.end_time);
+    v.positive("output.record_interval", o.record_interval);
+    if let Some(s) = o.state_interval {
+        v.positive("output.state_interval", s);
+    }
+    v.positive("output.rest_speed", o.rest_speed);
+    v.in_range("output.rest_fraction", o.rest_fraction, 0.0, 0.5);
+
+    let a = &spec.analysis;
+    v.positive("analysis.column_length", a.column_length);
+    v.positive("analysis.column_height", a.column_height);
+    v.open_range("analysis.front_mass_fraction", a.front_mass_fraction, 0.0, 0.5);
+    if let Some(b) = a.deposit_bin {
+        v.positive("analysis.deposit_bin", b);
+    }
+    if a.condition == Condition::Liquid && (spec.fluids.is_empty() || !spec.particles.is_empty()) {
+        v.fail(
+            "analysis.condition",
+            "`liquid` is for a column of liquid alone: [[fluids]] and no [[particles]]".into(),
+        );
+    }
+    if a.condition == Condition::Saturated && spec.fluids.is_empty() {
+        v.fail("analysis.condition", "`saturated` needs at least one [[fluids]] block".into());
+    }
+    if spec.particles.is_empty() && spec.fluids.is_empty() {
+        v.fail("", "the scene has neither [[particles]] nor [[fluids]]: nothing to simulate".into());
+    }
+    if !mpm && norm(d.gravity) == 0.0 && spec.particles.iter().any(|p| matches!(p.packing, PackingSpec::Deposit { .. }))
+    {
+        v.fail("domain.gravity", "gravity deposition needs non-zero gravity".into());
     }
 }
 
