@@ -353,3 +353,259 @@ fn record<T, E>(rec: &mut Recording, f: impl FnOnce(&mut Recording) -> Result<T,
     rec.seconds += started.elapsed().as_secs_f64();
     out
 }
+
+#[cfg(test)]
+mod tests {
+    //! The loop's state machine on a toy solver: a point mass whose speed
+    //! follows a script, so that every way a run ends can be forced.
+
+    use super::*;
+    use schemas::summary::Throughput;
+
+    #[derive(Debug, thiserror::Error)]
+    enum ToyError {
+        #[error(transparent)]
+        Record(#[from] RecordError),
+        #[error("blew up at step {0}")]
+        BlowUp(u64),
+        #[error("peer gone at step {0}")]
+        Peer(u64),
+        #[error("cannot write {0}")]
+        Io(String),
+    }
+
+    /// `speed(step)` is the moving mass fraction recorded at `step`;
+    /// `blow_up_at`, `peer_fails_at`, `peer_stops_at` and `raise_stop_at`
+    /// force the other endings.
+    struct Toy<'a> {
+        steps: u64,
+        dt: f64,
+        speed: fn(u64) -> f64,
+        released_after: u64,
+        blow_up_at: Option<u64>,
+        peer_fails_at: Option<u64>,
+        peer_stops_at: Option<u64>,
+        raise_stop_at: Option<(u64, &'a AtomicBool)>,
+        frames: Vec<u64>,
+        states: Vec<u64>,
+        told_peer: bool,
+        finished_with: Option<(RunStatus, bool)>,
+    }
+
+    impl<'a> Toy<'a> {
+        fn new(speed: fn(u64) -> f64) -> Self {
+            Toy {
+                steps: 0,
+                dt: 0.001,
+                speed,
+                released_after: 0,
+                blow_up_at: None,
+                peer_fails_at: None,
+                peer_stops_at: None,
+                raise_stop_at: None,
+                frames: Vec::new(),
+                states: Vec::new(),
+                told_peer: false,
+                finished_with: None,
+            }
+        }
+    }
+
+    impl Solver for Toy<'_> {
+        type Error = ToyError;
+        fn time(&self) -> f64 {
+            self.steps as f64 * self.dt
+        }
+        fn steps(&self) -> u64 {
+            self.steps
+        }
+        fn work_per_step(&self) -> f64 {
+            1.0
+        }
+        fn step(&mut self, _rec: &mut Recording) -> Result<Flow, StepError<ToyError>> {
+            if self.peer_fails_at == Some(self.steps) {
+                return Err(StepError::Peer(ToyError::Peer(self.steps)));
+            }
+            if self.peer_stops_at == Some(self.steps) {
+                return Ok(Flow::Stop(RunStatus::PeerStopped));
+            }
+            self.steps += 1;
+            if let Some((at, flag)) = self.raise_stop_at {
+                if self.steps == at {
+                    flag.store(true, Ordering::Relaxed);
+                }
+            }
+            Ok(Flow::Continue)
+        }
+        fn interrupted(&mut self) {
+            self.told_peer = true;
+        }
+        fn check(&self) -> Result<(), ToyError> {
+            match self.blow_up_at {
+                Some(at) if self.steps >= at => Err(ToyError::BlowUp(self.steps)),
+                _ => Ok(()),
+            }
+        }
+        fn record_frame(&mut self, _rec: &mut Recording, _clock: FrameClock) -> Result<FrameReport, ToyError> {
+            self.frames.push(self.steps);
+            Ok(FrameReport {
+                moving_fraction: Some((self.speed)(self.steps)),
+                released: self.steps > self.released_after,
+            })
+        }
+        fn record_state(&mut self, _rec: &mut Recording) -> Result<(), ToyError> {
+            self.states.push(self.steps);
+            Ok(())
+        }
+        fn finish(&mut self, status: RunStatus, failed: bool, _rec: &mut Recording) -> Result<(), ToyError> {
+            self.finished_with = Some((status, failed));
+            Ok(())
+        }
+        fn summary(&mut self, end: &RunEnd) -> RunSummary {
+            RunSummary {
+                scene: "toy".into(),
+                method: "toy".into(),
+                status: end.status,
+                sim_time: self.time(),
+                wall_seconds: end.wall,
+                steps: self.steps,
+                throughput: Throughput {
+                    particle_steps_per_s: None,
+                    cell_updates_per_s: None,
+                    point_updates_per_s: None,
+                    wall_per_sim_second: 0.0,
+                },
+                t_ref: 1.0,
+                front: Vec::new(),
+                runout: end.work,
+                front_connected: Vec::new(),
+                runout_connected: None,
+                front_pile: Vec::new(),
+                runout_pile: None,
+                deposit: Vec::new(),
+                porosity_initial: 0.0,
+                liquid_front: Vec::new(),
+                dem: None,
+                lbm: None,
+                mpm: None,
+                wall_seconds_total: None,
+                exchange: None,
+            }
+        }
+        fn cannot_write(path: &Path, source: std::io::Error) -> ToyError {
+            ToyError::Io(format!("{}: {source}", path.display()))
+        }
+    }
+
+    const CADENCE: Cadence =
+        Cadence { steps_per_frame: 10, steps_per_state: Some(30), step_limit: 95, state_at_start: true };
+    const REST: RestRule = RestRule { stop_at_rest: true, fraction: 0.01, frames: REST_FRAMES };
+
+    fn run(toy: &mut Toy<'_>, stop: &AtomicBool, rest: RestRule) -> (Result<RunSummary, ToyError>, serde_json::Value) {
+        let dir =
+            std::env::temp_dir().join(format!("sgf-driver-{}-{:?}", std::process::id(), std::thread::current().id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("summary.json");
+        let _ = std::fs::remove_file(&path);
+        let mut rec = Recording::off("toy");
+        let result = drive(toy, &mut rec, CADENCE, rest, stop, &mut |_, _| {}, &path);
+        let written = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary written")).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        (result, written)
+    }
+
+    /// To the step limit: frames every 10 steps and a last one at 95,
+    /// states at 0, every 30 steps and at the end; every step's work counted.
+    #[test]
+    fn a_run_to_its_end_records_the_cadence_and_the_last_step() {
+        let mut toy = Toy::new(|_| 0.5);
+        let (r, written) = run(&mut toy, &AtomicBool::new(false), REST);
+        let s = r.unwrap();
+        assert_eq!((s.status, s.steps, s.runout), (RunStatus::Completed, 95, 95.0));
+        assert_eq!(toy.frames, [0, 10, 20, 30, 40, 50, 60, 70, 80, 90, 95]);
+        assert_eq!(toy.states, [0, 30, 60, 90, 95]);
+        assert_eq!(toy.finished_with, Some((RunStatus::Completed, false)));
+        assert_eq!(written["status"], "completed");
+    }
+
+    /// Rest counts only once the mass has moved and the gates are open, and
+    /// takes three frames in a row; the run then ends at that frame with no
+    /// extra frame, and its state is recorded once.
+    #[test]
+    fn rest_needs_motion_open_gates_and_three_quiet_frames() {
+        // Still at 0-20 (has not moved yet), moving at 30-40, still from 50.
+        let mut toy = Toy::new(|s| if (30..=40).contains(&s) { 0.5 } else { 0.0 });
+        let (r, _) = run(&mut toy, &AtomicBool::new(false), REST);
+        assert_eq!(r.unwrap().status, RunStatus::AtRest);
+        assert_eq!(toy.steps, 70, "quiet frames at 50, 60, 70");
+        assert_eq!(toy.frames.last(), Some(&70));
+        assert_eq!(toy.states, [0, 30, 60, 70]);
+        // Gates held until step 65: the quiet frames count from 70 on.
+        let mut toy = Toy::new(|s| if (30..=40).contains(&s) { 0.5 } else { 0.0 });
+        toy.released_after = 65;
+        let (r, _) = run(&mut toy, &AtomicBool::new(false), REST);
+        assert_eq!((r.unwrap().status, toy.steps), (RunStatus::AtRest, 90));
+        // Without stop_at_rest the run goes to its end.
+        let mut toy = Toy::new(|s| if (30..=40).contains(&s) { 0.5 } else { 0.0 });
+        let (r, _) = run(&mut toy, &AtomicBool::new(false), RestRule { stop_at_rest: false, ..REST });
+        assert_eq!((r.unwrap().status, toy.steps), (RunStatus::Completed, 95));
+    }
+
+    /// The stop flag ends the run after the step that saw it, tells the
+    /// peer, and still records a last frame and state.
+    #[test]
+    fn the_stop_flag_interrupts_at_a_step_boundary_with_a_last_frame() {
+        let stop = AtomicBool::new(false);
+        let mut toy = Toy::new(|_| 0.5);
+        toy.raise_stop_at = Some((47, &stop));
+        let (r, written) = run(&mut toy, &stop, REST);
+        assert_eq!((r.unwrap().status, toy.steps), (RunStatus::Interrupted, 47));
+        assert!(toy.told_peer);
+        assert_eq!((toy.frames.last(), toy.states.last()), (Some(&47), Some(&47)));
+        assert_eq!(written["status"], "interrupted");
+    }
+
+    /// A blow-up found at a frame ends the run `unstable`: no frame of the
+    /// blown state, its state recorded, the summary written, the error returned.
+    #[test]
+    fn a_blow_up_ends_unstable_with_its_summary_and_state() {
+        let mut toy = Toy::new(|_| 0.5);
+        toy.blow_up_at = Some(35);
+        let (r, written) = run(&mut toy, &AtomicBool::new(false), REST);
+        assert!(matches!(r, Err(ToyError::BlowUp(40))), "{r:?}");
+        assert_eq!(written["status"], "unstable");
+        assert_eq!(toy.frames.last(), Some(&30));
+        assert_eq!(toy.states.last(), Some(&40));
+        assert_eq!(toy.finished_with, Some((RunStatus::Unstable, true)));
+    }
+
+    /// A failed exchange is `peer_failed` with the error returned, unless the
+    /// stop flag is up (then the peer's going is the same Ctrl-C:
+    /// `interrupted`, no error); a peer's own stop ends the run with the
+    /// status the solver gives.
+    #[test]
+    fn peer_endings_take_their_status() {
+        let mut toy = Toy::new(|_| 0.5);
+        toy.peer_fails_at = Some(22);
+        let (r, written) = run(&mut toy, &AtomicBool::new(false), REST);
+        assert!(matches!(r, Err(ToyError::Peer(22))), "{r:?}");
+        assert_eq!(written["status"], "peer_failed");
+        assert_eq!(
+            (toy.frames.last(), toy.states.last()),
+            (Some(&20), Some(&22)),
+            "no frame after a failure; the state"
+        );
+
+        let mut toy = Toy::new(|_| 0.5);
+        toy.peer_fails_at = Some(22);
+        let (r, _) = run(&mut toy, &AtomicBool::new(true), REST);
+        assert_eq!(r.unwrap().status, RunStatus::Interrupted);
+
+        let mut toy = Toy::new(|_| 0.5);
+        toy.peer_stops_at = Some(50);
+        let (r, _) = run(&mut toy, &AtomicBool::new(false), REST);
+        assert_eq!((r.unwrap().status, toy.steps), (RunStatus::PeerStopped, 50));
+        assert_eq!(toy.frames.last(), Some(&50), "recorded at the cadence, not twice");
+        assert_eq!(toy.finished_with, Some((RunStatus::PeerStopped, false)));
+    }
+}
