@@ -503,7 +503,6 @@ fn check_blow_up(world: &World, setup: &DemSetup) -> Result<(), RunError> {
     Ok(())
 }
 
-/// Records one frame; returns the largest grain speed.
 /// Front samples of a run: all grains, and grains touching another grain.
 #[derive(Default)]
 struct Fronts {
@@ -518,7 +517,8 @@ struct Fronts {
     bins: Vec<f64>,
 }
 
-fn record_frame(r: &mut DemRun<'_, '_>, rec: &mut Recording, rate: f64) -> Result<f64, RecordError> {
+/// Measures one frame (fronts, pile edge) into the run and records it.
+fn record_frame(r: &mut DemRun<'_, '_>, rec: &mut Recording, rate: f64) -> Result<(), RecordError> {
     let (world, scene, front) = (&r.world, r.scene, &mut r.front);
     let t_ref = scene.reference_time();
     let g = &world.grains;
@@ -632,5 +632,5 @@ fn record_frame(r: &mut DemRun<'_, '_>, rec: &mut Recording, rate: f64) -> Resul
         };
         rec.log(ch.metrics, t, &metrics)?;
     }
-    Ok(max_speed)
+    Ok(())
 }

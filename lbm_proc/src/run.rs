@@ -237,11 +237,13 @@ struct LbmRun<'a, 'p> {
 }
 
 impl LbmRun<'_, '_> {
-    /// Exchange `self.steps` with the DEM: its grain states in, forced into
-    /// the lattice while the step runs, the loads back out.
-    fn coupled_step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
+    /// One lattice step; coupled, exchange `self.steps` with the DEM: its
+    /// grain states in, forced into the lattice while the step runs, the
+    /// loads back out.
+    fn lattice_step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
         let (Some(p), Some(f)) = (self.peer.as_deref_mut(), self.forcing.as_mut()) else {
-            unreachable!("coupled_step without a peer")
+            self.fluid.step();
+            return Ok(Flow::Continue);
         };
         let (steps, time) = (self.steps, self.time);
         let waited = Instant::now();
@@ -289,12 +291,8 @@ impl Solver for LbmRun<'_, '_> {
     }
 
     fn step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
-        if self.peer.is_some() {
-            if let Flow::Stop(s) = self.coupled_step(rec)? {
-                return Ok(Flow::Stop(s));
-            }
-        } else {
-            self.fluid.step();
+        if let Flow::Stop(s) = self.lattice_step(rec)? {
+            return Ok(Flow::Stop(s));
         }
         self.steps += 1;
         self.time = self.steps as f64 * self.setup.units.dt();
