@@ -7,17 +7,20 @@ use std::sync::atomic::AtomicBool;
 use foxglove::schemas::{Color, PointCloud, Pose, SceneEntity, SceneUpdate, SpherePrimitive, Vector3};
 use serde::{Deserialize, Serialize};
 
-use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
-use runtime::exchange::LoadPeer;
+use runtime::coupled::{Coupled, Exchange, ExchangeFailure, Side};
+use runtime::driver::{
+    drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError, StepExchange,
+};
+use runtime::exchange::{ExchangeHeader, HydroLoad, ParticleState};
 use runtime::metrics::{CouplingTimings, DemMetrics};
 use runtime::process::{Progress, RunOptions};
 use runtime::record::{f32_field, identity_pose, identity_quaternion, log_level, timestamp, ChannelId, RecordError};
 use schemas::measures::{coordination_shares, deposit_profile, front_position, pile_edge, FrontSample};
 use schemas::scene::Scene;
-use schemas::summary::{DemDetails, ExchangeDetails, RunStatus, RunSummary, Throughput};
+use schemas::summary::{DemDetails, ExchangeDetails, RunSummary, Throughput};
 use schemas::topics;
 
-use crate::hydro::{Connect, Flow as ExchangeFlow, HydroExchange};
+use crate::hydro::{capture_states, hold_loads, Connect};
 use crate::packing::{self, Packing, PackingError, PackingReport};
 use crate::setup::{walls, DemSetup};
 use crate::world::{Grains, Histories, World};
@@ -145,7 +148,8 @@ pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
 ///
 /// With `connect` (a coupled scene), the peer is connected once the packing
 /// is ready; then every `coupling.ratio`-th step exchanges grain states for
-/// hydrodynamic loads ([`HydroExchange`]); at the end the peer gets the stop flag.
+/// hydrodynamic loads (the driver's [`Exchange`], the DEM sending first);
+/// at the end the peer gets the stop flag.
 pub fn run(
     scene: &Scene,
     opts: &RunOptions,
@@ -208,16 +212,17 @@ pub fn run(
         log_level::INFO,
         &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk),
     )?;
-    let mut hydro = peer.is_some().then(|| HydroExchange::from_scene(scene, dt));
-    if let Some(h) = hydro.as_mut() {
-        h.record_received = channels.as_ref().is_some_and(|c| c.received.is_some());
-    }
+    let mut exchange = peer.map(|p| {
+        let c = &scene.spec.coupling;
+        Exchange::new(p, Side::dem(c.schedule), c.ratio as u64, "lbm_proc")
+            .expecting(world.len())
+            .recording_into(channels.as_ref().and_then(|c| c.received))
+    });
     let mut solver = DemRun {
         scene,
         setup,
         world,
-        peer,
-        hydro,
+        coupled,
         channels,
         front,
         scratch: Vec::new(),
@@ -229,6 +234,7 @@ pub fn run(
     let end_time = out.end_time;
     drive(
         &mut solver,
+        exchange.as_mut().map(|x| x as &mut dyn StepExchange<DemRun>),
         &mut rec,
         cadence,
         RestRule::of(out),
@@ -290,13 +296,13 @@ fn prepare_packing(
     Ok((packing, early_log))
 }
 
-/// The DEM as the run driver steps it, with its peer when coupled.
-struct DemRun<'a, 'p> {
+/// The DEM as the run driver steps it.
+struct DemRun<'a> {
     scene: &'a Scene,
     setup: DemSetup,
     world: World,
-    peer: Option<Box<dyn LoadPeer + 'p>>,
-    hydro: Option<HydroExchange>,
+    /// Coupled with an LBM peer (the driver holds the exchange).
+    coupled: bool,
     channels: Option<Channels>,
     front: Fronts,
     scratch: Vec<(f64, f64)>,
@@ -308,7 +314,26 @@ struct DemRun<'a, 'p> {
     coupling_before: [f64; 4],
 }
 
-impl Solver for DemRun<'_, '_> {
+impl From<ExchangeFailure> for RunError {
+    fn from(e: ExchangeFailure) -> Self {
+        RunError::Peer { t: e.time, source: e.source }
+    }
+}
+
+/// The DEM sends its grain states and holds the loads answered.
+impl Coupled for DemRun<'_> {
+    type Sends = ParticleState;
+    type Receives = HydroLoad;
+    fn outgoing(&mut self, out: &mut Vec<ParticleState>) {
+        capture_states(&self.world, out);
+    }
+    fn incoming(&mut self, _header: &ExchangeHeader, loads: &mut Vec<HydroLoad>) -> Result<(), RunError> {
+        hold_loads(&mut self.world, loads);
+        Ok(())
+    }
+}
+
+impl Solver for DemRun<'_> {
     type Error = RunError;
 
     fn time(&self) -> f64 {
@@ -323,25 +348,7 @@ impl Solver for DemRun<'_, '_> {
         self.world.len() as f64
     }
 
-    fn step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
-        if let (Some(h), Some(p)) = (self.hydro.as_mut(), self.peer.as_deref_mut()) {
-            if h.due(&self.world) {
-                let result = h.exchange(&mut self.world, p);
-                if let (Some(r), Some(Some(ch))) = (rec.recorder(), self.channels.as_ref().map(|c| c.received)) {
-                    for (t, bytes) in h.received.drain(..) {
-                        r.log_bytes(ch, t, bytes)?;
-                    }
-                }
-                match result {
-                    Ok(ExchangeFlow::Continue) => {}
-                    Ok(ExchangeFlow::PeerStopped) => {
-                        rec.log(self.world.time, log_level::WARNING, "lbm_proc stopped; recording the last state")?;
-                        return Ok(Flow::Stop(RunStatus::PeerStopped));
-                    }
-                    Err(source) => return Err(StepError::Peer(RunError::Peer { t: self.world.time, source })),
-                }
-            }
-        }
+    fn step(&mut self, _rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
         self.world.step();
         Ok(Flow::Continue)
     }
@@ -352,12 +359,12 @@ impl Solver for DemRun<'_, '_> {
 
     fn record_frame(&mut self, rec: &mut Recording, clock: FrameClock) -> Result<FrameReport, RunError> {
         record_frame(self, rec, clock.rate)?;
-        if let (Some(h), Some(r), Some(Some(ch))) =
-            (self.hydro.as_ref(), rec.recorder(), self.channels.as_ref().map(|c| c.coupling))
+        if let (Some(x), Some(r), Some(Some(ch))) =
+            (clock.exchange, rec.recorder(), self.channels.as_ref().map(|c| c.coupling))
         {
             if self.world.step_count > 0 {
                 let t = self.world.time;
-                let now = [h.exchanges as f64, clock.wall, h.exchange_seconds, 0.0];
+                let now = [x.exchanges as f64, clock.wall, x.seconds, 0.0];
                 r.log(ch, t, &CouplingTimings::between(t, now, self.coupling_before))?;
                 self.coupling_before = now;
             }
@@ -373,21 +380,6 @@ impl Solver for DemRun<'_, '_> {
         Ok(())
     }
 
-    fn finish(&mut self, status: RunStatus, failed: bool, rec: &mut Recording) -> Result<(), RunError> {
-        if let (Some(h), Some(p)) = (self.hydro.as_mut(), self.peer.as_deref_mut()) {
-            if !failed && status != RunStatus::PeerStopped {
-                if let Err(source) = h.finish(&self.world, p) {
-                    rec.log(
-                        self.world.time,
-                        log_level::WARNING,
-                        &format!("could not tell lbm_proc to stop: {source}"),
-                    )?;
-                }
-            }
-        }
-        Ok(())
-    }
-
     fn summary(&mut self, end: &RunEnd) -> RunSummary {
         summary(self, end)
     }
@@ -398,7 +390,7 @@ impl Solver for DemRun<'_, '_> {
 }
 
 /// The run's summary: fronts, runouts, deposit, the DEM's details.
-fn summary(r: &mut DemRun<'_, '_>, end: &RunEnd) -> RunSummary {
+fn summary(r: &mut DemRun<'_>, end: &RunEnd) -> RunSummary {
     let (scene, setup, world, rep) = (r.scene, &r.setup, &r.world, &r.packing);
     let (x0, l0) = (scene.spec.domain.min[0], scene.spec.analysis.column_length);
     let wall = end.wall;
@@ -412,7 +404,7 @@ fn summary(r: &mut DemRun<'_, '_>, end: &RunEnd) -> RunSummary {
     let particle_steps = world.step_count as f64 * world.len() as f64;
     RunSummary {
         scene: scene.spec.scene.name.clone(),
-        method: if r.hydro.is_some() { "dem_lbm" } else { "dem" }.into(),
+        method: if r.coupled { "dem_lbm" } else { "dem" }.into(),
         status: end.status,
         sim_time: world.time,
         wall_seconds: wall,
@@ -453,12 +445,12 @@ fn summary(r: &mut DemRun<'_, '_>, end: &RunEnd) -> RunSummary {
         lbm: None,
         mpm: None,
         wall_seconds_total: None,
-        exchange: r.hydro.as_ref().map(|h| ExchangeDetails {
-            schedule: h.schedule.name().into(),
-            ratio: h.ratio as u32,
-            exchanges: h.exchanges,
-            seconds: h.exchange_seconds,
-            fraction: h.exchange_seconds / wall.max(1e-9),
+        exchange: end.exchange.map(|x| ExchangeDetails {
+            schedule: scene.spec.coupling.schedule.name().into(),
+            ratio: scene.spec.coupling.ratio,
+            exchanges: x.exchanges,
+            seconds: x.seconds,
+            fraction: x.seconds / wall.max(1e-9),
             kernel_seconds: 0.0,
             forcing_gain: None,
         }),
@@ -518,7 +510,7 @@ struct Fronts {
 }
 
 /// Measures one frame (fronts, pile edge) into the run and records it.
-fn record_frame(r: &mut DemRun<'_, '_>, rec: &mut Recording, rate: f64) -> Result<(), RecordError> {
+fn record_frame(r: &mut DemRun<'_>, rec: &mut Recording, rate: f64) -> Result<(), RecordError> {
     let (world, scene, front) = (&r.world, r.scene, &mut r.front);
     let t_ref = scene.reference_time();
     let g = &world.grains;

@@ -3,19 +3,21 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
-use std::time::Instant;
 
 use foxglove::schemas::{Grid, PointCloud, Pose, Quaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
-use runtime::exchange::{ExchangeHeader, ParticleState, StatePeer, FLAG_STOPPING};
+use runtime::coupled::{Coupled, Exchange, ExchangeFailure, Side};
+use runtime::driver::{
+    drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError, StepExchange,
+};
+use runtime::exchange::{ExchangeHeader, HydroLoad, ParticleState, StatePeer};
 use runtime::metrics::{CouplingTimings, LbmMetrics};
 use runtime::process::{Progress, RunOptions};
 use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError};
 use schemas::measures::{front_position, FrontSample};
 use schemas::scene::Scene;
-use schemas::summary::{ExchangeDetails, LbmDetails, RunStatus, RunSummary, Throughput};
+use schemas::summary::{ExchangeDetails, LbmDetails, RunSummary, Throughput};
 use schemas::topics;
 
 use crate::coupling::{Coupling, CouplingError};
@@ -184,6 +186,10 @@ pub fn run(
     };
     let mut gates_removed = vec![false; setup.gates.len()];
     release_gates(&mut fluid, &setup, &mut gates_removed, 0.0, &mut rec)?;
+    let mut exchange = peer.map(|p| {
+        Exchange::new(Box::new(p), Side::ReceivesFirst, 1, "dem_proc")
+            .recording_into(channels.as_ref().and_then(|c| c.received))
+    });
     let mut solver = LbmRun {
         scene,
         setup,
@@ -191,11 +197,10 @@ pub fn run(
         gates_removed,
         time: 0.0,
         steps: 0,
-        peer,
         forcing,
+        header: ExchangeHeader::new(0, 0.0),
         states: Vec::new(),
         loads: Vec::new(),
-        exchange_seconds: 0.0,
         coupling_before: [0.0; 4],
         channels,
         gathered: Gathered::default(),
@@ -205,6 +210,7 @@ pub fn run(
     let end_time = out.end_time;
     drive(
         &mut solver,
+        exchange.as_mut().map(|x| x as &mut dyn StepExchange<LbmRun>),
         &mut rec,
         cadence,
         RestRule::of(out),
@@ -214,20 +220,20 @@ pub fn run(
     )
 }
 
-/// The lattice as the run driver steps it, with its peer when coupled.
-struct LbmRun<'a, 'p> {
+/// The lattice as the run driver steps it.
+struct LbmRun<'a> {
     scene: &'a Scene,
     setup: LbmSetup,
     fluid: Fluid<f32>,
     gates_removed: Vec<bool>,
     time: f64,
     steps: u64,
-    peer: Option<&'p mut dyn StatePeer>,
+    /// Coupled: the grains forced into each step (the driver holds the exchange).
     forcing: Option<GrainForcing>,
+    /// Coupled: the last message received, and the loads the step computed.
+    header: ExchangeHeader,
     states: Vec<ParticleState>,
-    loads: Vec<runtime::exchange::HydroLoad>,
-    /// Wall seconds spent receiving and sending.
-    exchange_seconds: f64,
+    loads: Vec<HydroLoad>,
     /// Cumulative (exchanges, wall s, wait s, coupling s) at the last frame.
     coupling_before: [f64; 4],
     channels: Option<Channels>,
@@ -236,46 +242,28 @@ struct LbmRun<'a, 'p> {
     active_initial: usize,
 }
 
-impl LbmRun<'_, '_> {
-    /// One lattice step; coupled, exchange `self.steps` with the DEM: its
-    /// grain states in, forced into the lattice while the step runs, the
-    /// loads back out.
-    fn lattice_step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
-        let (Some(p), Some(f)) = (self.peer.as_deref_mut(), self.forcing.as_mut()) else {
-            self.fluid.step();
-            return Ok(Flow::Continue);
-        };
-        let (steps, time) = (self.steps, self.time);
-        let waited = Instant::now();
-        let header = p
-            .receive_states(steps, &mut self.states)
-            .map_err(|source| StepError::Peer(RunError::Peer { exchange: steps, source }))?;
-        self.exchange_seconds += waited.elapsed().as_secs_f64();
-        if let (Some(r), Some(Some(ch))) = (rec.recorder(), self.channels.as_ref().map(|c| c.received)) {
-            let received: &[ParticleState] = if header.is_stopping() { &[] } else { &self.states };
-            // The recorder takes the buffer: one allocation per recorded exchange.
-            let mut bytes = Vec::new();
-            runtime::exchange::encode_states(&header, received, &mut bytes);
-            r.log_bytes(ch, time, bytes)?;
-        }
-        if header.is_stopping() {
-            rec.log(time, log_level::INFO, &format!("dem_proc stopped at exchange {steps}"))?;
-            return Ok(Flow::Stop(RunStatus::Completed));
-        }
-        f.step(&mut self.fluid, &header, &self.states, &mut self.loads)
-            .map_err(|source| StepError::Fatal(RunError::Coupling { exchange: steps, source }))?;
-        let sent = Instant::now();
-        let answer = ExchangeHeader { exchange: steps, time: header.time, count: self.loads.len() as u32, flags: 0 };
-        let sent_result = p.send_loads(answer, &self.loads);
-        self.exchange_seconds += sent.elapsed().as_secs_f64();
-        // The conversions do not change the loads: done while the DEM steps.
-        self.fluid.finish_step();
-        sent_result.map_err(|source| StepError::Peer(RunError::Peer { exchange: steps, source }))?;
-        Ok(Flow::Continue)
+impl From<ExchangeFailure> for RunError {
+    fn from(e: ExchangeFailure) -> Self {
+        RunError::Peer { exchange: e.exchange, source: e.source }
     }
 }
 
-impl Solver for LbmRun<'_, '_> {
+/// The LBM takes the grain states of a step, forces them in, answers the
+/// loads.
+impl Coupled for LbmRun<'_> {
+    type Sends = HydroLoad;
+    type Receives = ParticleState;
+    fn outgoing(&mut self, out: &mut Vec<HydroLoad>) {
+        std::mem::swap(out, &mut self.loads);
+    }
+    fn incoming(&mut self, header: &ExchangeHeader, states: &mut Vec<ParticleState>) -> Result<(), RunError> {
+        self.header = *header;
+        std::mem::swap(states, &mut self.states);
+        Ok(())
+    }
+}
+
+impl Solver for LbmRun<'_> {
     type Error = RunError;
 
     fn time(&self) -> f64 {
@@ -290,23 +278,25 @@ impl Solver for LbmRun<'_, '_> {
         self.fluid.active_cells() as f64
     }
 
-    fn step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
-        if let Flow::Stop(s) = self.lattice_step(rec)? {
-            return Ok(Flow::Stop(s));
+    /// Coupled, the part of the step the DEM waits for: the lattice step
+    /// with the grains of this exchange forced in, the loads computed.
+    fn step(&mut self, _rec: &mut Recording) -> Result<Flow, StepError<RunError>> {
+        match self.forcing.as_mut() {
+            Some(f) => f
+                .step(&mut self.fluid, &self.header, &self.states, &mut self.loads)
+                .map_err(|source| StepError::Fatal(RunError::Coupling { exchange: self.steps, source }))?,
+            None => self.fluid.begin_step(),
         }
-        self.steps += 1;
-        self.time = self.steps as f64 * self.setup.units.dt();
-        release_gates(&mut self.fluid, &self.setup, &mut self.gates_removed, self.time, rec)
-            .map_err(StepError::Fatal)?;
         Ok(Flow::Continue)
     }
 
-    fn interrupted(&mut self) {
-        if let Some(p) = self.peer.as_deref_mut() {
-            // The DEM may be waiting for this step's load: tell it to stop too.
-            let header = ExchangeHeader { exchange: self.steps, time: self.time, count: 0, flags: FLAG_STOPPING };
-            let _ = p.send_loads(header, &[]);
-        }
+    /// The free-surface conversions (they do not change the loads: done
+    /// while the DEM steps), then the gates due.
+    fn finish_step(&mut self, rec: &mut Recording) -> Result<(), StepError<RunError>> {
+        self.fluid.finish_step();
+        self.steps += 1;
+        self.time = self.steps as f64 * self.setup.units.dt();
+        release_gates(&mut self.fluid, &self.setup, &mut self.gates_removed, self.time, rec).map_err(StepError::Fatal)
     }
 
     fn check(&self) -> Result<(), RunError> {
@@ -327,11 +317,11 @@ impl Solver for LbmRun<'_, '_> {
             self.mass_initial,
             clock.rate / 1e6,
         )?;
-        if let (Some(f), Some(r), Some(Some(ch))) =
-            (self.forcing.as_ref(), rec.recorder(), self.channels.as_ref().map(|c| c.coupling))
+        if let (Some(f), Some(x), Some(r), Some(Some(ch))) =
+            (self.forcing.as_ref(), clock.exchange, rec.recorder(), self.channels.as_ref().map(|c| c.coupling))
         {
             if self.steps > 0 {
-                let now = [self.steps as f64, clock.wall, self.exchange_seconds, f.coupling_seconds];
+                let now = [x.exchanges as f64, clock.wall, x.seconds, f.coupling_seconds];
                 r.log(ch, self.time, &CouplingTimings::between(self.time, now, self.coupling_before))?;
                 self.coupling_before = now;
             }
@@ -402,12 +392,12 @@ impl Solver for LbmRun<'_, '_> {
             }),
             mpm: None,
             wall_seconds_total: None,
-            exchange: self.forcing.as_ref().map(|f| ExchangeDetails {
+            exchange: self.forcing.as_ref().zip(end.exchange).map(|(f, x)| ExchangeDetails {
                 schedule: scene.spec.coupling.schedule.name().into(),
                 ratio: scene.spec.coupling.ratio,
-                exchanges: steps,
-                seconds: self.exchange_seconds,
-                fraction: self.exchange_seconds / wall.max(1e-9),
+                exchanges: x.exchanges,
+                seconds: x.seconds,
+                fraction: x.seconds / wall.max(1e-9),
                 kernel_seconds: f.coupling_seconds,
                 forcing_gain: Some(scene.spec.coupling.forcing_gain.name().into()),
             }),

@@ -282,6 +282,7 @@ fn run_on_pool(
     let end_time = out.end_time;
     drive(
         &mut solver,
+        None,
         &mut rec,
         cadence,
         RestRule::of(out),

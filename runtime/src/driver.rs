@@ -1,27 +1,32 @@
 //! The one run loop every solver process uses.
 //!
-//! A solver ([`Solver`]) knows how to take one step (its exchange with a
-//! coupled peer included), check itself for a blow-up, record a frame and a
-//! full state, and summarise the run. [`drive`] owns everything around
-//! that, the same for the DEM, the LBM and the MPM: the stop flag, the
-//! recording cadence of frames and states, rest detection, the typed
-//! [`RunStatus`] the run ends with, the last frame and state, progress, and
-//! writing the summary (into the recording's metadata and beside it).
+//! A solver ([`Solver`]) knows how to take one step, check itself for a
+//! blow-up, record a frame and a full state, and summarise the run.
+//! [`drive`] owns everything around that, the same for the DEM, the LBM
+//! and the MPM: the exchange with a coupled peer ([`StepExchange`], see
+//! [`crate::coupled`]), the stop flag, the recording cadence of frames and
+//! states, rest detection, the typed [`RunStatus`] the run ends with, the
+//! last frame and state, progress, and writing the summary (into the
+//! recording's metadata and beside it).
 //!
 //! Order of one iteration, fixed here so that it cannot drift between
 //! solvers (restart and resume hook in here as well):
-//! 1. [`Solver::step`]: one step; a coupled solver exchanges with its peer
-//!    inside it and may end the run ([`Flow::Stop`], [`StepError::Peer`]);
-//! 2. the stop flag (SIGINT/SIGTERM): status `interrupted`,
-//!    [`Solver::interrupted`] tells a peer;
-//! 3. at every `steps_per_frame`-th step: [`Solver::check`] (a blow-up
+//! 1. coupled: the half of the exchange before the step
+//!    ([`StepExchange::before_step`]); the peer may end the run
+//!    ([`Flow::Stop`], [`StepError::Peer`]);
+//! 2. [`Solver::step`]; coupled, the answer to the peer
+//!    ([`StepExchange::after_step`]); then [`Solver::finish_step`], the
+//!    part of the step the peer does not wait for;
+//! 3. the stop flag (SIGINT/SIGTERM): status `interrupted`, the peer told
+//!    ([`StepExchange::interrupted`]);
+//! 4. at every `steps_per_frame`-th step: [`Solver::check`] (a blow-up
 //!    ends the run `unstable`), [`Solver::record_frame`], the state at
 //!    every `steps_per_state`-th step, then rest detection;
-//! 4. progress, at most every half second of wall time.
+//! 5. progress, at most every half second of wall time.
 //!
-//! After the loop: [`Solver::finish`] (a coupled DEM tells its peer), a
-//! last frame unless the run failed or the last step was just recorded, a
-//! last state unless it was just recorded, then the summary.
+//! After the loop: the peer told the run stops ([`StepExchange::finish`]),
+//! a last frame unless the run failed or the last step was just recorded,
+//! a last state unless it was just recorded, then the summary.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -29,6 +34,7 @@ use std::time::Instant;
 
 use schemas::summary::{RunStatus, RunSummary};
 
+use crate::coupled::{Coupled, Exchange, ExchangeFailure, ExchangeFigures};
 use crate::record::{log_entry, log_level, ChannelId, RecordError, Recorder, RecorderBuilder};
 
 /// A run's recording as the solver sees it: absent under `--no-record`.
@@ -144,6 +150,8 @@ pub struct FrameClock {
     pub rate: f64,
     /// Wall seconds since the loop started.
     pub wall: f64,
+    /// The exchange's totals so far, when coupled.
+    pub exchange: Option<ExchangeFigures>,
 }
 
 /// How the run ended, for the summary.
@@ -156,6 +164,8 @@ pub struct RunEnd {
     pub work: f64,
     /// Wall seconds spent recording.
     pub recording_seconds: f64,
+    /// The exchange's totals, when coupled.
+    pub exchange: Option<ExchangeFigures>,
 }
 
 /// The recording cadence and the length of the run, in steps.
@@ -208,20 +218,20 @@ pub trait Solver {
     fn steps(&self) -> u64;
     /// Work units (grains, active cells, points) the next step does.
     fn work_per_step(&self) -> f64;
-    /// One step, with its exchange when coupled.
+    /// One step (coupled: the part whose result the peer waits for).
     fn step(&mut self, rec: &mut Recording) -> Result<Flow, StepError<Self::Error>>;
-    /// The stop flag ended the run after a step: tell a peer.
-    fn interrupted(&mut self) {}
+    /// The rest of the step, after a coupled solver's answer has gone (the
+    /// LBM's free-surface conversions, which do not change the loads,
+    /// overlap the DEM's steps).
+    fn finish_step(&mut self, _rec: &mut Recording) -> Result<(), StepError<Self::Error>> {
+        Ok(())
+    }
     /// A reason to stop the run as `unstable`, checked before each frame.
     fn check(&self) -> Result<(), Self::Error>;
     /// Measures and records one frame.
     fn record_frame(&mut self, rec: &mut Recording, clock: FrameClock) -> Result<FrameReport, Self::Error>;
     /// Records the full state (`/…/state`).
     fn record_state(&mut self, rec: &mut Recording) -> Result<(), Self::Error>;
-    /// After the loop, before the last frame (a coupled DEM tells its peer).
-    fn finish(&mut self, _status: RunStatus, _failed: bool, _rec: &mut Recording) -> Result<(), Self::Error> {
-        Ok(())
-    }
     /// The run's summary.
     fn summary(&mut self, end: &RunEnd) -> RunSummary;
     /// The `/log` line that closes the run.
@@ -232,12 +242,52 @@ pub trait Solver {
     fn cannot_write(path: &Path, source: std::io::Error) -> Self::Error;
 }
 
+/// The exchange with a coupled peer as the driver calls it: the halves
+/// around the solver's step and the messages at the end of a run
+/// ([`Exchange`] for any [`Coupled`] solver).
+pub trait StepExchange<S: Solver> {
+    /// Before the step: send and/or receive, as the side requires.
+    fn before_step(&mut self, solver: &mut S, rec: &mut Recording) -> Result<Flow, StepError<S::Error>>;
+    /// After the step: the answer, for a side that receives first.
+    fn after_step(&mut self, solver: &mut S) -> Result<(), StepError<S::Error>>;
+    /// The stop flag ended the run.
+    fn interrupted(&mut self, time: f64);
+    /// After the loop, before the last frame.
+    fn finish(&mut self, solver: &mut S, status: RunStatus, failed: bool, rec: &mut Recording) -> Result<(), S::Error>;
+    /// Totals so far.
+    fn figures(&self) -> ExchangeFigures;
+}
+
+impl<C> StepExchange<C> for Exchange<'_, C::Sends, C::Receives>
+where
+    C: Coupled,
+    C::Error: From<ExchangeFailure>,
+{
+    fn before_step(&mut self, solver: &mut C, rec: &mut Recording) -> Result<Flow, StepError<C::Error>> {
+        Exchange::before_step(self, solver, rec)
+    }
+    fn after_step(&mut self, solver: &mut C) -> Result<(), StepError<C::Error>> {
+        Exchange::after_step(self, solver).map_err(|e| StepError::Peer(e.into()))
+    }
+    fn interrupted(&mut self, time: f64) {
+        Exchange::interrupted(self, time);
+    }
+    fn finish(&mut self, solver: &mut C, status: RunStatus, failed: bool, rec: &mut Recording) -> Result<(), C::Error> {
+        Ok(Exchange::finish(self, solver, status, failed, rec)?)
+    }
+    fn figures(&self) -> ExchangeFigures {
+        Exchange::figures(self)
+    }
+}
+
 /// Runs `solver` to its step limit, to rest, to a stop or a failure (see
 /// the module docs for the order), then writes the summary into the
 /// recording and to `summary_path`. Returns the summary, or the failure
 /// the run ended with once the summary is written.
-pub fn drive<S: Solver>(
+#[allow(clippy::too_many_arguments)]
+pub fn drive<'x, S: Solver>(
     solver: &mut S,
+    mut exchange: Option<&mut (dyn StepExchange<S> + 'x)>,
     rec: &mut Recording,
     cadence: Cadence,
     rest: RestRule,
@@ -251,7 +301,7 @@ pub fn drive<S: Solver>(
     let started = Instant::now();
     let mut last_frame = (Instant::now(), 0.0_f64);
     let mut last_progress = Instant::now();
-    let clock0 = FrameClock { rate: 0.0, wall: 0.0 };
+    let clock0 = FrameClock { rate: 0.0, wall: 0.0, exchange: exchange.as_deref().map(|x| x.figures()) };
     record(rec, |rec| solver.record_frame(rec, clock0))?;
     if cadence.state_at_start {
         record(rec, |rec| solver.record_state(rec))?;
@@ -262,7 +312,7 @@ pub fn drive<S: Solver>(
     let mut has_moved = false;
     while solver.steps() < cadence.step_limit {
         let step_work = solver.work_per_step();
-        match solver.step(rec) {
+        match step_once(solver, exchange.as_deref_mut(), rec) {
             Ok(Flow::Continue) => work += step_work,
             Ok(Flow::Stop(s)) => {
                 status = s;
@@ -285,7 +335,9 @@ pub fn drive<S: Solver>(
         if stop.load(Ordering::Relaxed) {
             status = RunStatus::Interrupted;
             rec.log(t, log_level::WARNING, "interrupted by signal; recording the last state")?;
-            solver.interrupted();
+            if let Some(x) = exchange.as_deref_mut() {
+                x.interrupted(t);
+            }
             break;
         }
         if steps.is_multiple_of(cadence.steps_per_frame) {
@@ -295,10 +347,7 @@ pub fn drive<S: Solver>(
                 failure = Some(e);
                 break;
             }
-            let elapsed = last_frame.0.elapsed().as_secs_f64();
-            let clock =
-                FrameClock { rate: (work - last_frame.1) / elapsed.max(1e-9), wall: started.elapsed().as_secs_f64() };
-            last_frame = (Instant::now(), work);
+            let clock = frame_clock(&mut last_frame, work, started, exchange.as_deref());
             let report = record(rec, |rec| solver.record_frame(rec, clock))?;
             last_recorded = steps;
             if cadence.steps_per_state.is_some_and(|n| steps.is_multiple_of(n)) {
@@ -322,19 +371,23 @@ pub fn drive<S: Solver>(
             last_progress = Instant::now();
         }
     }
-    solver.finish(status, failure.is_some(), rec)?;
+    if let Some(x) = exchange.as_deref_mut() {
+        x.finish(solver, status, failure.is_some(), rec)?;
+    }
     let wall = started.elapsed().as_secs_f64();
     let steps = solver.steps();
     progress(solver.time(), steps);
     // The run always ends with a recorded frame and a full state (after a
     // blow-up the state, not a frame, shows it).
     if last_recorded != steps && failure.is_none() {
-        record(rec, |rec| solver.record_frame(rec, clock0))?;
+        let clock = frame_clock(&mut last_frame, work, started, exchange.as_deref());
+        record(rec, |rec| solver.record_frame(rec, clock))?;
     }
     if last_state != Some(steps) {
         record(rec, |rec| solver.record_state(rec))?;
     }
-    let end = RunEnd { status, wall, work, recording_seconds: rec.seconds };
+    let figures = exchange.as_deref().map(|x| x.figures());
+    let end = RunEnd { status, wall, work, recording_seconds: rec.seconds, exchange: figures };
     let summary = solver.summary(&end);
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
     rec.log(summary.sim_time, log_level::INFO, &solver.closing_line(&summary))?;
@@ -344,6 +397,44 @@ pub fn drive<S: Solver>(
         Some(e) => Err(e),
         None => Ok(summary),
     }
+}
+
+/// The clock of a frame recorded now; `last_frame` (when, work done) moves here.
+fn frame_clock<S: Solver>(
+    last_frame: &mut (Instant, f64),
+    work: f64,
+    started: Instant,
+    exchange: Option<&dyn StepExchange<S>>,
+) -> FrameClock {
+    let elapsed = last_frame.0.elapsed().as_secs_f64();
+    let clock = FrameClock {
+        rate: (work - last_frame.1) / elapsed.max(1e-9),
+        wall: started.elapsed().as_secs_f64(),
+        exchange: exchange.map(|x| x.figures()),
+    };
+    *last_frame = (Instant::now(), work);
+    clock
+}
+
+/// One iteration's step with the exchange around it (steps 1–2 of the
+/// module docs). The last part of the step is done even when the answer
+/// failed: the lattice stepped, only the peer did not hear of it.
+fn step_once<'x, S: Solver>(
+    solver: &mut S,
+    mut exchange: Option<&mut (dyn StepExchange<S> + 'x)>,
+    rec: &mut Recording,
+) -> Result<Flow, StepError<S::Error>> {
+    if let Some(x) = exchange.as_deref_mut() {
+        if let Flow::Stop(s) = x.before_step(solver, rec)? {
+            return Ok(Flow::Stop(s));
+        }
+    }
+    if let Flow::Stop(s) = solver.step(rec)? {
+        return Ok(Flow::Stop(s));
+    }
+    let answered = exchange.map_or(Ok(()), |x| x.after_step(solver));
+    let finished = solver.finish_step(rec);
+    answered.and(finished).map(|()| Flow::Continue)
 }
 
 /// Runs a recording call, adding its wall time to [`Recording::seconds`].
@@ -360,6 +451,9 @@ mod tests {
     //! follows a script, so that every way a run ends can be forced.
 
     use super::*;
+    use crate::coupled::Side;
+    use crate::exchange::{Peer, PeerError};
+    use schemas::messages::{ExchangeHeader, HydroLoad, ParticleState};
     use schemas::summary::Throughput;
 
     #[derive(Debug, thiserror::Error)]
@@ -372,6 +466,8 @@ mod tests {
         Peer(u64),
         #[error("cannot write {0}")]
         Io(String),
+        #[error("{0}")]
+        Exchange(String),
     }
 
     /// `speed(step)` is the moving mass fraction recorded at `step`;
@@ -388,8 +484,10 @@ mod tests {
         raise_stop_at: Option<(u64, &'a AtomicBool)>,
         frames: Vec<u64>,
         states: Vec<u64>,
-        told_peer: bool,
-        finished_with: Option<(RunStatus, bool)>,
+        /// Coupled: (step, exchange of the header, load held) at each exchange.
+        held: Vec<(u64, u64, f64)>,
+        /// Coupled: the exchange totals the last frame was handed.
+        frame_figures: Option<ExchangeFigures>,
     }
 
     impl<'a> Toy<'a> {
@@ -405,8 +503,8 @@ mod tests {
                 raise_stop_at: None,
                 frames: Vec::new(),
                 states: Vec::new(),
-                told_peer: false,
-                finished_with: None,
+                held: Vec::new(),
+                frame_figures: None,
             }
         }
     }
@@ -437,17 +535,15 @@ mod tests {
             }
             Ok(Flow::Continue)
         }
-        fn interrupted(&mut self) {
-            self.told_peer = true;
-        }
         fn check(&self) -> Result<(), ToyError> {
             match self.blow_up_at {
                 Some(at) if self.steps >= at => Err(ToyError::BlowUp(self.steps)),
                 _ => Ok(()),
             }
         }
-        fn record_frame(&mut self, _rec: &mut Recording, _clock: FrameClock) -> Result<FrameReport, ToyError> {
+        fn record_frame(&mut self, _rec: &mut Recording, clock: FrameClock) -> Result<FrameReport, ToyError> {
             self.frames.push(self.steps);
+            self.frame_figures = clock.exchange;
             Ok(FrameReport {
                 moving_fraction: Some((self.speed)(self.steps)),
                 released: self.steps > self.released_after,
@@ -455,10 +551,6 @@ mod tests {
         }
         fn record_state(&mut self, _rec: &mut Recording) -> Result<(), ToyError> {
             self.states.push(self.steps);
-            Ok(())
-        }
-        fn finish(&mut self, status: RunStatus, failed: bool, _rec: &mut Recording) -> Result<(), ToyError> {
-            self.finished_with = Some((status, failed));
             Ok(())
         }
         fn summary(&mut self, end: &RunEnd) -> RunSummary {
@@ -502,13 +594,22 @@ mod tests {
     const REST: RestRule = RestRule { stop_at_rest: true, fraction: 0.01, frames: REST_FRAMES };
 
     fn run(toy: &mut Toy<'_>, stop: &AtomicBool, rest: RestRule) -> (Result<RunSummary, ToyError>, serde_json::Value) {
+        run_with(toy, None, stop, rest)
+    }
+
+    fn run_with<'t>(
+        toy: &mut Toy<'t>,
+        exchange: Option<&mut dyn StepExchange<Toy<'t>>>,
+        stop: &AtomicBool,
+        rest: RestRule,
+    ) -> (Result<RunSummary, ToyError>, serde_json::Value) {
         let dir =
             std::env::temp_dir().join(format!("sgf-driver-{}-{:?}", std::process::id(), std::thread::current().id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("summary.json");
         let _ = std::fs::remove_file(&path);
         let mut rec = Recording::off("toy");
-        let result = drive(toy, &mut rec, CADENCE, rest, stop, &mut |_, _| {}, &path);
+        let result = drive(toy, exchange, &mut rec, CADENCE, rest, stop, &mut |_, _| {}, &path);
         let written = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary written")).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
         (result, written)
@@ -524,7 +625,6 @@ mod tests {
         assert_eq!((s.status, s.steps, s.runout), (RunStatus::Completed, 95, 95.0));
         assert_eq!(toy.frames, [0, 10, 20, 30, 40, 50, 60, 70, 80, 90, 95]);
         assert_eq!(toy.states, [0, 30, 60, 90, 95]);
-        assert_eq!(toy.finished_with, Some((RunStatus::Completed, false)));
         assert_eq!(written["status"], "completed");
     }
 
@@ -551,8 +651,8 @@ mod tests {
         assert_eq!((r.unwrap().status, toy.steps), (RunStatus::Completed, 95));
     }
 
-    /// The stop flag ends the run after the step that saw it, tells the
-    /// peer, and still records a last frame and state.
+    /// The stop flag ends the run after the step that saw it and still
+    /// records a last frame and state.
     #[test]
     fn the_stop_flag_interrupts_at_a_step_boundary_with_a_last_frame() {
         let stop = AtomicBool::new(false);
@@ -560,7 +660,6 @@ mod tests {
         toy.raise_stop_at = Some((47, &stop));
         let (r, written) = run(&mut toy, &stop, REST);
         assert_eq!((r.unwrap().status, toy.steps), (RunStatus::Interrupted, 47));
-        assert!(toy.told_peer);
         assert_eq!((toy.frames.last(), toy.states.last()), (Some(&47), Some(&47)));
         assert_eq!(written["status"], "interrupted");
     }
@@ -576,7 +675,6 @@ mod tests {
         assert_eq!(written["status"], "unstable");
         assert_eq!(toy.frames.last(), Some(&30));
         assert_eq!(toy.states.last(), Some(&40));
-        assert_eq!(toy.finished_with, Some((RunStatus::Unstable, true)));
     }
 
     /// A failed exchange is `peer_failed` with the error returned, unless the
@@ -606,6 +704,164 @@ mod tests {
         let (r, _) = run(&mut toy, &AtomicBool::new(false), REST);
         assert_eq!((r.unwrap().status, toy.steps), (RunStatus::PeerStopped, 50));
         assert_eq!(toy.frames.last(), Some(&50), "recorded at the cadence, not twice");
-        assert_eq!(toy.finished_with, Some((RunStatus::PeerStopped, false)));
+    }
+
+    // The exchange the driver owns, on the toy as a DEM-like side: it sends
+    // one state (x = its step) every 10 steps and holds the load answered.
+
+    impl From<ExchangeFailure> for ToyError {
+        fn from(e: ExchangeFailure) -> Self {
+            ToyError::Exchange(format!("exchange {}: {}", e.exchange, e.source))
+        }
+    }
+
+    impl Coupled for Toy<'_> {
+        type Sends = ParticleState;
+        type Receives = HydroLoad;
+        fn outgoing(&mut self, out: &mut Vec<ParticleState>) {
+            out.clear();
+            out.push(ParticleState { position: [self.steps as f64, 0.0, 0.0], ..ParticleState::default() });
+        }
+        fn incoming(&mut self, header: &ExchangeHeader, message: &mut Vec<HydroLoad>) -> Result<(), ToyError> {
+            self.held.push((self.steps, header.exchange, message.first().map_or(f64::NAN, |l| l.force[0])));
+            Ok(())
+        }
+    }
+
+    /// What the scripted peer saw.
+    #[derive(Default)]
+    struct PeerLog {
+        sent_to_peer: Vec<ExchangeHeader>,
+        asked: Vec<u64>,
+    }
+
+    /// A peer that answers exchange n with one load of force n, except
+    /// where told to answer another index, two entries, a stop or an error.
+    struct ScriptPeer {
+        log: std::rc::Rc<std::cell::RefCell<PeerLog>>,
+        wrong_index_at: Option<u64>,
+        two_entries_at: Option<u64>,
+        stops_at: Option<u64>,
+        fails_at: Option<u64>,
+    }
+
+    impl ScriptPeer {
+        fn new(log: &std::rc::Rc<std::cell::RefCell<PeerLog>>) -> Self {
+            ScriptPeer { log: log.clone(), wrong_index_at: None, two_entries_at: None, stops_at: None, fails_at: None }
+        }
+    }
+
+    impl Peer<ParticleState, HydroLoad> for ScriptPeer {
+        fn send(&mut self, header: ExchangeHeader, _message: &[ParticleState]) -> Result<(), PeerError> {
+            self.log.borrow_mut().sent_to_peer.push(header);
+            Ok(())
+        }
+        fn receive(&mut self, n: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError> {
+            self.log.borrow_mut().asked.push(n);
+            if self.fails_at == Some(n) {
+                return Err("peer died".into());
+            }
+            if self.stops_at == Some(n) {
+                return Ok(ExchangeHeader::new(n, f64::NAN).stopping());
+            }
+            out.clear();
+            out.push(HydroLoad { force: [n as f64, 0.0, 0.0], ..HydroLoad::default() });
+            if self.two_entries_at == Some(n) {
+                out.push(HydroLoad { id: 1, ..HydroLoad::default() });
+            }
+            let index = if self.wrong_index_at == Some(n) { n + 1 } else { n };
+            Ok(ExchangeHeader::new(index, n as f64))
+        }
+    }
+
+    fn coupled_run(
+        peer: ScriptPeer,
+        side: Side,
+        stop: &AtomicBool,
+    ) -> (Toy<'static>, Result<RunSummary, ToyError>, serde_json::Value, ExchangeFigures) {
+        let mut toy = Toy::new(|_| 0.5);
+        let mut exchange = Exchange::new(Box::new(peer), side, 10, "peer").expecting(1);
+        let (r, written) = run_with(&mut toy, Some(&mut exchange), stop, REST);
+        let figures = exchange.figures();
+        (toy, r, written, figures)
+    }
+
+    /// Sequential: exchange n at step 10n sends, then holds the load of n;
+    /// the run's end sends a stop message with the next index and the
+    /// last state. Frames see the totals.
+    #[test]
+    fn a_sequential_exchange_holds_the_load_of_its_own_step() {
+        let log = Default::default();
+        let (toy, r, _, figures) =
+            coupled_run(ScriptPeer::new(&log), Side::SendsFirst { lagged: false }, &AtomicBool::new(false));
+        assert_eq!(r.unwrap().status, RunStatus::Completed);
+        let expect: Vec<_> = (0..10).map(|n| (10 * n, n, n as f64)).collect();
+        assert_eq!(toy.held, expect);
+        assert_eq!(figures.exchanges, 10);
+        assert_eq!(toy.frame_figures.map(|f| f.exchanges), Some(10));
+        let log = log.borrow();
+        assert_eq!(log.asked, (0..10).collect::<Vec<_>>());
+        let last = log.sent_to_peer.last().unwrap();
+        assert!(last.is_stopping() && last.exchange == 10 && last.count == 1, "{last:?}");
+        assert_eq!(log.sent_to_peer.len(), 11);
+    }
+
+    /// Concurrent (lagged): exchange 0 waits for its own load, exchange 1
+    /// receives nothing and holds it again, exchange n ≥ 2 holds n − 1.
+    #[test]
+    fn a_lagged_exchange_holds_the_previous_load() {
+        let log = Default::default();
+        let (toy, r, _, _) =
+            coupled_run(ScriptPeer::new(&log), Side::SendsFirst { lagged: true }, &AtomicBool::new(false));
+        assert_eq!(r.unwrap().status, RunStatus::Completed);
+        let held: Vec<f64> = toy.held.iter().map(|h| h.2).collect();
+        assert_eq!(held, [0.0, 0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0]);
+        assert_eq!(log.borrow().asked, (0..9).collect::<Vec<_>>());
+    }
+
+    /// A message out of order or with the wrong count ends the run
+    /// `peer_failed`, naming the call the peer must make; a peer's error
+    /// likewise; a peer's stop ends it `peer_stopped` without a stop
+    /// message back.
+    #[test]
+    fn the_exchange_refuses_what_the_peer_got_wrong() {
+        let no_stop = AtomicBool::new(false);
+        let log = Default::default();
+        let (_, r, written, _) = coupled_run(
+            ScriptPeer { wrong_index_at: Some(3), ..ScriptPeer::new(&log) },
+            Side::SendsFirst { lagged: false },
+            &no_stop,
+        );
+        let e = r.unwrap_err().to_string();
+        assert!(e.contains("exchange 3") && e.contains("send_loads(3)"), "{e}");
+        assert_eq!(written["status"], "peer_failed");
+        assert!(!log.borrow().sent_to_peer.last().unwrap().is_stopping(), "no stop message after a failure");
+
+        let log = Default::default();
+        let (_, r, _, _) = coupled_run(
+            ScriptPeer { two_entries_at: Some(4), ..ScriptPeer::new(&log) },
+            Side::SendsFirst { lagged: false },
+            &no_stop,
+        );
+        let e = r.unwrap_err().to_string();
+        assert!(e.contains("sent 2 entries for 1 grains"), "{e}");
+
+        let log = Default::default();
+        let (toy, r, _, _) = coupled_run(
+            ScriptPeer { fails_at: Some(6), ..ScriptPeer::new(&log) },
+            Side::SendsFirst { lagged: false },
+            &no_stop,
+        );
+        assert!(r.unwrap_err().to_string().contains("exchange 6: peer died"));
+        assert_eq!(toy.steps, 60);
+
+        let log = Default::default();
+        let (toy, r, _, figures) = coupled_run(
+            ScriptPeer { stops_at: Some(5), ..ScriptPeer::new(&log) },
+            Side::SendsFirst { lagged: false },
+            &no_stop,
+        );
+        assert_eq!((r.unwrap().status, toy.steps, figures.exchanges), (RunStatus::PeerStopped, 50, 6));
+        assert!(log.borrow().sent_to_peer.iter().all(|h| !h.is_stopping()));
     }
 }

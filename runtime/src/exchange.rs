@@ -16,21 +16,33 @@ pub use schemas::messages::{
 /// Why an exchange failed; the message names the cause and the fix.
 pub type PeerError = Box<dyn std::error::Error + Send + Sync>;
 
-/// The DEM's side of an exchange.
-pub trait LoadPeer {
-    /// Publishes the grain states of exchange `header.exchange`.
-    fn send_states(&mut self, header: ExchangeHeader, states: &[ParticleState]) -> Result<(), PeerError>;
-    /// The loads of exchange `exchange` (waits for them); `out` is resized to the count.
-    fn receive_loads(&mut self, exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError>;
+/// One side's view of its peer: it sends `Sends` and receives `Receives`,
+/// one message each per exchange. Transports deliver; they do not judge
+/// the order: the run driver's [`crate::coupled::Exchange`] checks every
+/// received header once, whatever the transport.
+pub trait Peer<Sends, Receives> {
+    /// Publishes the message of exchange `header.exchange`.
+    fn send(&mut self, header: ExchangeHeader, message: &[Sends]) -> Result<(), PeerError>;
+    /// The message of exchange `exchange` (waits for it); `out` holds its
+    /// entries. A header with [`FLAG_STOPPING`] says the peer stops.
+    fn receive(&mut self, exchange: u64, out: &mut Vec<Receives>) -> Result<ExchangeHeader, PeerError>;
 }
 
-/// The LBM's side of an exchange.
-pub trait StatePeer {
-    /// The grain states of exchange `exchange` (waits for them); a header
-    /// with [`FLAG_STOPPING`] ends the run.
-    fn receive_states(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError>;
-    /// Publishes the loads of exchange `header.exchange`.
-    fn send_loads(&mut self, header: ExchangeHeader, loads: &[HydroLoad]) -> Result<(), PeerError>;
+/// The DEM's side of an exchange: grain states out, loads in.
+pub trait LoadPeer: Peer<ParticleState, HydroLoad> {}
+impl<T: Peer<ParticleState, HydroLoad> + ?Sized> LoadPeer for T {}
+
+/// The LBM's side of an exchange: loads out, grain states in.
+pub trait StatePeer: Peer<HydroLoad, ParticleState> {}
+impl<T: Peer<HydroLoad, ParticleState> + ?Sized> StatePeer for T {}
+
+impl<S, R, P: Peer<S, R> + ?Sized> Peer<S, R> for &mut P {
+    fn send(&mut self, header: ExchangeHeader, message: &[S]) -> Result<(), PeerError> {
+        (**self).send(header, message)
+    }
+    fn receive(&mut self, exchange: u64, out: &mut Vec<R>) -> Result<ExchangeHeader, PeerError> {
+        (**self).receive(exchange, out)
+    }
 }
 
 /// Both ends of an exchange inside one process, over `std::sync::mpsc`
@@ -57,45 +69,37 @@ pub struct MemoryLbmEnd {
     loads: std::sync::mpsc::Sender<(ExchangeHeader, Vec<HydroLoad>)>,
 }
 
-/// [`schemas::messages::check_order`] for the in-process pair.
-fn in_order(side: &str, expected: u64, header: &ExchangeHeader) -> Result<(), PeerError> {
-    check_order(expected, header)
-        .map_err(|e| format!("{side}: {e}: both processes must step the same scene in lockstep").into())
-}
-
-impl LoadPeer for MemoryDemEnd {
-    fn send_states(&mut self, header: ExchangeHeader, states: &[ParticleState]) -> Result<(), PeerError> {
+impl Peer<ParticleState, HydroLoad> for MemoryDemEnd {
+    fn send(&mut self, header: ExchangeHeader, states: &[ParticleState]) -> Result<(), PeerError> {
         self.states.send((header, states.to_vec())).map_err(|_| "the LBM end of the in-process exchange is gone".into())
     }
-    fn receive_loads(&mut self, exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError> {
+    fn receive(&mut self, _exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError> {
         let (header, loads) =
             self.loads.recv().map_err(|_| PeerError::from("the LBM end of the in-process exchange is gone"))?;
-        in_order("DEM", exchange, &header)?;
         *out = loads;
         Ok(header)
     }
 }
 
-impl StatePeer for MemoryLbmEnd {
-    fn receive_states(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError> {
+impl Peer<HydroLoad, ParticleState> for MemoryLbmEnd {
+    fn receive(&mut self, _exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError> {
         let (header, states) =
             self.states.recv().map_err(|_| PeerError::from("the DEM end of the in-process exchange is gone"))?;
-        in_order("LBM", exchange, &header)?;
         *out = states;
         Ok(header)
     }
-    fn send_loads(&mut self, header: ExchangeHeader, loads: &[HydroLoad]) -> Result<(), PeerError> {
+    fn send(&mut self, header: ExchangeHeader, loads: &[HydroLoad]) -> Result<(), PeerError> {
         // The DEM may have finished and dropped its end: not an error for the sender.
         let _ = self.loads.send((header, loads.to_vec()));
         Ok(())
     }
 }
 
-impl LoadPeer for crate::link::DemLink {
-    fn send_states(&mut self, header: ExchangeHeader, states: &[ParticleState]) -> Result<(), PeerError> {
+impl Peer<ParticleState, HydroLoad> for crate::link::DemLink {
+    fn send(&mut self, header: ExchangeHeader, states: &[ParticleState]) -> Result<(), PeerError> {
         crate::link::DemLink::send_states(self, header, states).map_err(Into::into)
     }
-    fn receive_loads(&mut self, exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError> {
+    fn receive(&mut self, exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError> {
         match crate::link::DemLink::receive_loads(self, exchange, out) {
             // The LBM stopped (interrupted): the DEM stops too, not an error.
             Err(crate::link::LinkError::PeerStopped { .. }) => Ok(ExchangeHeader::new(exchange, f64::NAN).stopping()),
@@ -104,14 +108,14 @@ impl LoadPeer for crate::link::DemLink {
     }
 }
 
-impl StatePeer for crate::link::LbmLink {
-    fn receive_states(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError> {
+impl Peer<HydroLoad, ParticleState> for crate::link::LbmLink {
+    fn receive(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError> {
         match crate::link::LbmLink::receive_states(self, exchange, out) {
             Err(crate::link::LinkError::PeerStopped { .. }) => Ok(ExchangeHeader::new(exchange, f64::NAN).stopping()),
             r => r.map_err(Into::into),
         }
     }
-    fn send_loads(&mut self, header: ExchangeHeader, loads: &[HydroLoad]) -> Result<(), PeerError> {
+    fn send(&mut self, header: ExchangeHeader, loads: &[HydroLoad]) -> Result<(), PeerError> {
         crate::link::LbmLink::send_loads(self, header, loads).map_err(Into::into)
     }
 }
@@ -140,12 +144,6 @@ pub fn recorded_messages(path: &std::path::Path, topic: &str) -> Result<Vec<Vec<
     Ok(out)
 }
 
-/// [`schemas::messages::check_order`] for a replayed recording.
-fn replay_order(side: &str, expected: u64, header: &ExchangeHeader) -> Result<(), PeerError> {
-    check_order(expected, header)
-        .map_err(|e| format!("{side} replay: {e}: replay the scene, overrides and schedule the recording ran").into())
-}
-
 /// The DEM's peer played back from a recording's `/dem/received_loads`: the
 /// DEM runs alone and gets, exchange by exchange, the loads the LBM sent.
 /// The states it sends are dropped. Past the recording's end it reads a stop.
@@ -160,16 +158,15 @@ impl ReplayLoads {
     }
 }
 
-impl LoadPeer for ReplayLoads {
-    fn send_states(&mut self, _header: ExchangeHeader, _states: &[ParticleState]) -> Result<(), PeerError> {
+impl Peer<ParticleState, HydroLoad> for ReplayLoads {
+    fn send(&mut self, _header: ExchangeHeader, _states: &[ParticleState]) -> Result<(), PeerError> {
         Ok(())
     }
-    fn receive_loads(&mut self, exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError> {
+    fn receive(&mut self, exchange: u64, out: &mut Vec<HydroLoad>) -> Result<ExchangeHeader, PeerError> {
         let Some(bytes) = self.messages.next() else {
             return Ok(ExchangeHeader::new(exchange, f64::NAN).stopping());
         };
         let (header, loads) = decode_loads(&bytes)?;
-        replay_order("DEM", exchange, &header)?;
         *out = loads;
         Ok(header)
     }
@@ -188,17 +185,16 @@ impl ReplayStates {
     }
 }
 
-impl StatePeer for ReplayStates {
-    fn receive_states(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError> {
+impl Peer<HydroLoad, ParticleState> for ReplayStates {
+    fn receive(&mut self, exchange: u64, out: &mut Vec<ParticleState>) -> Result<ExchangeHeader, PeerError> {
         let Some(bytes) = self.messages.next() else {
             return Ok(ExchangeHeader::new(exchange, f64::NAN).stopping());
         };
         let (header, states) = decode_states(&bytes)?;
-        replay_order("LBM", exchange, &header)?;
         *out = states;
         Ok(header)
     }
-    fn send_loads(&mut self, _header: ExchangeHeader, _loads: &[HydroLoad]) -> Result<(), PeerError> {
+    fn send(&mut self, _header: ExchangeHeader, _loads: &[HydroLoad]) -> Result<(), PeerError> {
         Ok(())
     }
 }
