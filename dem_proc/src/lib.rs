@@ -15,6 +15,7 @@ pub mod lanes;
 pub mod law;
 pub mod neighbours;
 pub mod packing;
+pub mod plan;
 pub mod rng;
 pub mod run;
 pub mod setup;

@@ -24,6 +24,7 @@ pub mod fluid;
 pub mod grains;
 pub mod lattice;
 pub mod memory;
+pub mod plan;
 pub mod real;
 pub mod run;
 pub mod setup;

@@ -13,6 +13,9 @@
 
 use schemas::scene::{PackingSpec, Scene};
 
+mod report;
+pub use report::{plan, MEASURED_MPM_RATE};
+
 /// The wave that limits the MPM time step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Wave {

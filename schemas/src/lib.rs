@@ -8,6 +8,7 @@ pub mod error;
 pub mod measures;
 pub mod messages;
 pub mod overrides;
+pub mod plan;
 pub mod scene;
 pub mod summary;
 pub mod topics;

@@ -1,0 +1,304 @@
+//! The MPM's plan for a scene as `coupler check` prints it
+//! ([`schemas::plan`]): the grid and points, the waves, Δt and the cost,
+//! the soil, liquid and drag models, the boundaries and the transfer, from
+//! the closed forms of [`super`] that `mpm_proc` itself uses.
+
+use schemas::plan::Plan;
+use schemas::scene::{Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmTransfer, PackingSpec, Scene};
+
+use super::{self as mpm, SceneMpm};
+
+/// Point updates per second of the saturated column's bench, 2 threads
+/// (docs/BENCHMARKS.md); only used to estimate a duration.
+pub const MEASURED_MPM_RATE: f64 = 4.1e6;
+
+/// Rough bytes per material point (position, velocity, mass, volume,
+/// stresses, strains, porosity, flags, and its GIMP weights and gradients on
+/// 9 nodes) and per grid node and phase (mass, momentum, force, velocity,
+/// drag, density fields); only used to print a memory figure.
+const MPM_BYTES_PER_POINT: f64 = 500.0;
+const MPM_BYTES_PER_NODE_PHASE: f64 = 200.0;
+
+/// The MPM's plan for `scene` (validated as `mpm`): grid, points, waves
+/// and Δt, soil model, drag, gravity phase.
+pub fn plan(scene: &Scene) -> Plan {
+    let mut p = Plan::new("mpm_proc", "point updates");
+    let m = scene.mpm();
+    let grid = scene.mpm_grid();
+    let h = grid.element_size;
+    let ppe = m.points_per_element as usize;
+    let (a, b) = m.point_grid();
+    p.line("grid", format!("{} x {} = {} elements (x, z) of {} m, {} nodes; {} shape functions; {ppe} points per phase per filled element ({a} x {b})",
+        grid.nx,
+        grid.nz,
+        grid.elements(),
+        short(h),
+        grid.nodes(),
+        m.shape_functions.name()
+    ));
+    let points = plan_points(scene, ppe, &mut p);
+    let ts = scene.mpm_time_step();
+    plan_waves_and_cost(scene, &ts, points, &mut p);
+    plan_materials(scene, &ts, &mut p);
+    numerics_warnings(scene, ppe, &mut p);
+    plan_boundaries(scene, &mut p);
+    p
+}
+
+/// The soil's and the liquid's filled elements and points; returns the points of both phases.
+fn plan_points(scene: &Scene, ppe: usize, p: &mut Plan) -> usize {
+    let s = &scene.spec;
+    let grid = scene.mpm_grid();
+    // Filled elements: the soil's and the liquid's regions in whole elements.
+    let area = |r: &schemas::scene::BoxSpec| -> ((usize, usize), (usize, usize)) {
+        (grid.span(0, r.min[0], r.max[0]), grid.span(2, r.min[2], r.max[2]))
+    };
+    let count = |((x0, x1), (z0, z1)): ((usize, usize), (usize, usize))| (x1 - x0) * (z1 - z0);
+    let soil_area = s.particles.first().and_then(|p| match &p.packing {
+        PackingSpec::Deposit { region, .. } => Some(area(region)),
+        PackingSpec::Explicit { .. } => None,
+    });
+    let liquid_area = s.fluids.first().map(|f| area(&f.region));
+    let soil_elements = soil_area.map(count).unwrap_or(0);
+    let liquid_elements = liquid_area.map(count).unwrap_or(0);
+    let overlap = match (soil_area, liquid_area) {
+        (Some(((sx0, sx1), (sz0, sz1))), Some(((lx0, lx1), (lz0, lz1)))) => {
+            sx1.min(lx1).saturating_sub(sx0.max(lx0)) * sz1.min(lz1).saturating_sub(sz0.max(lz0))
+        }
+        _ => 0,
+    };
+    let soil_points = soil_elements * ppe;
+    let liquid_points = liquid_elements * ppe;
+    if let Some(soil) = s.particles.first() {
+        p.line(
+            "soil",
+            format!(
+                "{}: {soil_elements} elements, {soil_points} solid points ({} saturated elements, {} dry)",
+                soil.name,
+                overlap,
+                soil_elements - overlap
+            ),
+        );
+    }
+    if let Some(liquid) = s.fluids.first() {
+        let free = liquid_elements - overlap;
+        let split = if free == 0 {
+            "all in the soil's elements".to_string()
+        } else {
+            format!("{} in the soil's elements, {} in {free} free-water elements", overlap * ppe, free * ppe)
+        };
+        p.line(
+            "liquid",
+            format!("{}: {liquid_elements} elements, {liquid_points} liquid points ({split})", liquid.name),
+        );
+    }
+    soil_points + liquid_points
+}
+
+/// Wave speeds, the time step and the cost of the run.
+fn plan_waves_and_cost(scene: &Scene, ts: &mpm::MpmTimeStep, points: usize, p: &mut Plan) {
+    let (s, m) = (&scene.spec, scene.mpm());
+    let grid = scene.mpm_grid();
+    let h = grid.element_size;
+    let speed = |c: Option<f64>| c.map(|c| format!("{c:.1} m/s")).unwrap_or_else(|| "–".into());
+    p.line(
+        "waves",
+        format!(
+            "undrained P {}, liquid {}, dry P {}; fastest {:.1} m/s ({})",
+            speed(ts.undrained),
+            speed(ts.liquid),
+            speed(ts.dry),
+            ts.max_speed,
+            ts.limiting.name()
+        ),
+    );
+    p.line(
+        "time step",
+        format!(
+            "dt {:.3e} s = courant {} x {} m / {:.1} m/s ({} limits)",
+            ts.dt,
+            m.courant,
+            short(h),
+            ts.max_speed,
+            ts.limiting.name()
+        ),
+    );
+    let gravity_steps = match m.initial_stress {
+        InitialStress::K0 => (m.gravity_phase_max_time / ts.dt).ceil(),
+        InitialStress::Zero => 0.0,
+    };
+    p.time_step = ts.dt;
+    p.steps = ts.steps;
+    p.work = ts.steps as f64 * points as f64;
+    p.memory = points as f64 * MPM_BYTES_PER_POINT + grid.nodes() as f64 * 2.0 * MPM_BYTES_PER_NODE_PHASE;
+    p.wall_estimate = p.work / MEASURED_MPM_RATE;
+    p.line(
+        "cost",
+        format!(
+            "{} steps to the end time {} s, {:.2e} point-updates (~{:.0} s at {:.1e} point-updates/s); gravity phase up to {gravity_steps:.0} steps more; memory ~{:.0} MB",
+            ts.steps,
+            s.output.end_time,
+            p.work,
+            p.wall_estimate,
+            MEASURED_MPM_RATE,
+            p.memory / 1e6
+        ),
+    );
+}
+
+/// The soil, liquid and drag models, with the warnings they call for.
+fn plan_materials(scene: &Scene, ts: &mpm::MpmTimeStep, p: &mut Plan) {
+    let (s, m) = (&scene.spec, scene.mpm());
+    if !s.particles.is_empty() {
+        let n0 = scene.mpm_porosity().unwrap_or(f64::NAN);
+        p.line("soil model", format!("E {:.3e} Pa, nu {}, E_oed {:.4e} Pa, K0 = nu/(1-nu) = {:.3}; Mohr-Coulomb phi {} deg (K_a {:.3}), c {} Pa, psi {} deg; n0 {}, n_max {}",
+            m.young_modulus,
+            m.poisson_ratio,
+            ts.oedometric_modulus,
+            mpm::at_rest_coefficient(m.poisson_ratio),
+            m.friction_angle,
+            mpm::active_coefficient(m.friction_angle),
+            m.cohesion,
+            m.dilatancy_angle,
+            n0,
+            m.max_porosity
+        ));
+        if n0 >= m.max_porosity {
+            p.warn(format!(
+                "n0 = {n0} is not below mpm.max_porosity = {}: the soil starts fluidised (no effective stress)",
+                m.max_porosity
+            ));
+        }
+        if mpm::at_rest_coefficient(m.poisson_ratio) < mpm::active_coefficient(m.friction_angle) {
+            p.warn(format!(
+                "K0 = {:.3} is below K_a = {:.3}: the K0 initial stresses violate Mohr-Coulomb before the gate opens; raise mpm.poisson_ratio",
+                mpm::at_rest_coefficient(m.poisson_ratio),
+                mpm::active_coefficient(m.friction_angle)
+            ));
+        }
+    }
+    if let Some(liquid) = s.fluids.first() {
+        p.line("liquid model", format!("K_L {:.3e} Pa, rho_L {} kg/m³, mu {:e} Pa s; tension up to {} Pa; free surface below fill {} (point or element); {}",
+            m.liquid_bulk_modulus,
+            liquid.density,
+            liquid.viscosity,
+            m.cavitation_threshold,
+            m.free_surface_fill,
+            match m.pressure_reconstruction {
+                MpmPressureReconstruction::Linear => "pore pressure a least-squares plane per element",
+                MpmPressureReconstruction::None => "pore pressure per point",
+            }
+        ));
+    }
+    if let Some(drag) = scene.mpm_drag() {
+        let n0 = scene.mpm_porosity().unwrap_or(f64::NAN);
+        p.line("drag", format!("Ergun A {}, B {}, D {} m: kappa(n0) {:.3e} m² (Eq. 9), hydraulic conductivity {:.3e} m/s; quadratic term {}",
+            m.ergun_a,
+            m.ergun_b,
+            s.particles[0].diameter,
+            drag.permeability,
+            drag.conductivity,
+            if m.quadratic_drag { "on" } else { "off" }
+        ));
+        p.line(
+            "reynolds",
+            format!(
+                "Re_p = D rho_L sqrt(g H0)/mu = {:.3e} (Eq. 12, sqrt(g H0) = {:.3} m/s)",
+                drag.reynolds, drag.reference_velocity
+            ),
+        );
+        p.line(
+            "drag step",
+            format!("dt mu n0²/kappa (1/((1-n0) rho_s) + 1/(n0 rho_L)) = {:.3e} (n0 = {n0})", drag.stiffness),
+        );
+        if drag.reynolds > 4e4 && !m.quadratic_drag {
+            p.warn(format!(
+                "Re_p = {:.2e} with mpm.quadratic_drag = false: the paper finds the quadratic term matters above ~4e4",
+                drag.reynolds
+            ));
+        }
+        if drag.stiffness > 1.0 {
+            p.warn(format!(
+                "drag stiffness dt mu n0²/kappa (...) = {:.2} > 1: an explicit drag would be unstable; mpm_proc integrates it implicitly per node, so this is handled, but the phases are locked together within a step",
+                drag.stiffness
+            ));
+        }
+    }
+}
+
+/// Warnings on the numerics: points per element, unused keys, the Courant number.
+fn numerics_warnings(scene: &Scene, ppe: usize, p: &mut Plan) {
+    let (s, m) = (&scene.spec, scene.mpm());
+    if !s.particles.is_empty() && !s.fluids.is_empty() && ppe < 4 {
+        p.warn(format!(
+            "{ppe} points per element with two phases: the paper saw instabilities with 3 points per element (12 work; here 3 ran the saturated lab column stably, its runout 4 % from 12's, docs/mpm.md); raise mpm.points_per_element"
+        ));
+    }
+    if let Some(unused) = schemas::scene::unused_flip_keys(&m) {
+        p.warn(unused);
+    }
+    if m.transfer.is_affine() && m.courant > 0.7 {
+        p.warn(format!(
+            "mpm.courant = {} under an affine transfer (APIC, AFLIP): an elastic block held at 0.75 and blew up at 0.8 (docs/mpm.md, \"Time step\"); soil that yields may survive it, stiff or cohesive parts may not; use 0.7 or less",
+            m.courant
+        ));
+    }
+}
+
+/// The gravity phase, the boundaries and the transfer.
+fn plan_boundaries(scene: &Scene, p: &mut Plan) {
+    let (s, m) = (&scene.spec, scene.mpm());
+    match m.initial_stress {
+        InitialStress::K0 => p.line("gravity", format!("K0 stresses{}, then a gravity phase with the gates held: damping {}, until the fastest point is slower than {} m/s or {} s",
+            if s.fluids.is_empty() { "" } else { " and hydrostatic pore pressure" },
+            m.gravity_phase_damping,
+            m.gravity_phase_rest_speed,
+            m.gravity_phase_max_time
+        )),
+        InitialStress::Zero => p.line("gravity", "stress-free start, gravity applied at t = 0 (no gravity phase)"),
+    }
+    let walls = &s.domain.walls;
+    let fixed = match (walls.contains(&Face::ZMin), m.floor) {
+        (false, _) => "no floor".to_string(),
+        (true, MpmFloor::Rough) => "z_min rough (no slip, impermeable)".to_string(),
+        (true, MpmFloor::Frictional) => {
+            format!("z_min Coulomb, soil friction {} (liquid slips; impermeable)", m.wall_friction)
+        }
+    };
+    let rollers: Vec<&str> =
+        [Face::XMin, Face::XMax, Face::ZMax].into_iter().filter(|f| walls.contains(f)).map(Face::name).collect();
+    let side = if m.wall_friction > 0.0 { format!("soil friction {}", m.wall_friction) } else { "rollers".to_string() };
+    p.line(
+        "boundaries",
+        format!(
+            "{fixed}; {side} on {}; y faces unused; local damping {}; top load {} Pa",
+            if rollers.is_empty() { "none".to_string() } else { rollers.join(" ") },
+            m.damping,
+            m.top_load
+        ),
+    );
+    match m.transfer {
+        MpmTransfer::Aflip => p.line("transfer", format!("AFLIP: APIC (affine part B D^-1 per point) with {} of the FLIP update blended in for the solid, {} for the liquid, MUSL; pic_fraction and xpic_order unused",
+            m.flip_share_in_effect(),
+            m.liquid_flip_share_in_effect()
+        )),
+        MpmTransfer::Apic => {
+            p.line("transfer", "APIC (affine part B D^-1 per point, no filter), MUSL; pic_fraction and xpic_order unused")
+        }
+        MpmTransfer::Flip => p.line("transfer", format!("FLIP less {} of the grid-invisible velocity per step ({}), MUSL (pure FLIP, 0, never lets a deposit rest; docs/mpm.md)",
+            m.pic_fraction,
+            if m.xpic_order >= 2 { "XPIC(2)" } else { "PIC blend" }
+        )),
+    }
+}
+
+/// A length with at most 6 decimals and no trailing zeros (1/300 m → 0.003333).
+fn short(x: f64) -> String {
+    let t = format!("{x:.6}");
+    let t = t.trim_end_matches('0').trim_end_matches('.');
+    if t.is_empty() || t == "-" || (t == "0" && x != 0.0) {
+        format!("{x:e}")
+    } else {
+        t.to_string()
+    }
+}
