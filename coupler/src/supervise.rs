@@ -16,7 +16,7 @@ use tokio::process::Command;
 use tokio::signal::unix::{signal, SignalKind};
 
 use schemas::scene::Schedule;
-use schemas::summary::RunStatus;
+use schemas::summary::{ExchangeSummary, RunExchange, RunStatus, RunSummary};
 use schemas::{Method, Scene, EXIT_BAD_SCENE, EXIT_INTERRUPTED};
 
 /// The directory holding this executable; solver binaries are its siblings.
@@ -417,12 +417,7 @@ fn forward(pids: &[Option<u32>], statuses: &[Option<std::process::ExitStatus>], 
 
 /// The run's recording: with one solver process its file renamed; with two,
 /// both merged into one timeline (the inputs removed once merged).
-fn collect_recording(
-    out: &Path,
-    solvers: &[(&str, &str)],
-    scene_toml: &str,
-    summary: Option<&serde_json::Value>,
-) -> PathBuf {
+fn collect_recording(out: &Path, solvers: &[(&str, &str)], scene_toml: &str, summary: Option<&RunSummary>) -> PathBuf {
     let run = out.join("run.mcap");
     let inputs: Vec<PathBuf> = solvers.iter().map(|(_, short)| out.join(format!("{short}.mcap"))).collect();
     if inputs.len() == 1 {
@@ -461,8 +456,8 @@ fn collect_recording(
 }
 
 /// Adds the coupler's fields to the solvers' summaries and writes
-/// `summary.json`. Kept as JSON values: NaN measures arrive as null and stay
-/// null. A coupled run's summary is the DEM's (fronts, runout, deposit) with
+/// `summary.json`, typed (`RunSummary`: NaN measures are written as null
+/// and read back as NaN). A coupled run's summary is the DEM's (fronts, runout, deposit) with
 /// the LBM's liquid front, lattice details and throughput, and the exchange
 /// as each process saw it.
 fn finish_summary(
@@ -471,14 +466,16 @@ fn finish_summary(
     wall_total: f64,
     interrupted: bool,
     failed: bool,
-) -> Option<serde_json::Value> {
+) -> Option<RunSummary> {
     let mut parts = Vec::new();
     for (_, short) in solvers {
         let path = out.join(format!("{short}_summary.json"));
         let Ok(text) = std::fs::read_to_string(&path) else { continue };
-        match serde_json::from_str::<serde_json::Value>(&text) {
-            Ok(v) => parts.push((*short, path, v)),
-            Err(e) => eprintln!("coupler: {} is not valid JSON: {e}", path.display()),
+        match serde_json::from_str::<RunSummary>(&text) {
+            Ok(s) => parts.push((*short, path, s)),
+            Err(e) => {
+                eprintln!("coupler: {} is not a run summary of this build ({e}); it is left in place", path.display())
+            }
         }
     }
     // A failed run keeps whatever summaries were written; a normal one needs all.
@@ -486,27 +483,12 @@ fn finish_summary(
     if parts.is_empty() || (!complete && !failed) {
         return None;
     }
-    let mut summary = parts[0].2.clone();
-    if solvers.len() > 1 {
-        let mut exchange = serde_json::Map::new();
-        for (short, _, part) in &parts {
-            exchange.insert((*short).into(), part["exchange"].clone());
-            if *short == "lbm" {
-                summary["liquid_front"] = part["liquid_front"].clone();
-                summary["lbm"] = part["lbm"].clone();
-                summary["throughput"]["cell_updates_per_s"] = part["throughput"]["cell_updates_per_s"].clone();
-                summary["wall_seconds_lbm"] = part["wall_seconds"].clone();
-            }
-        }
-        exchange.insert("schedule".into(), parts[0].2["exchange"]["schedule"].clone());
-        summary["exchange"] = exchange.into();
-        summary["method"] = "dem_lbm".into();
-    }
-    summary["wall_seconds_total"] = wall_total.into();
+    let mut summary = if solvers.len() > 1 { merge_coupled(&parts) } else { parts[0].2.clone() };
+    summary.wall_seconds_total = Some(wall_total);
     if interrupted {
-        summary["status"] = RunStatus::Interrupted.as_str().into();
+        summary.status = RunStatus::Interrupted;
     } else if failed {
-        summary["status"] = RunStatus::Failed.as_str().into();
+        summary.status = RunStatus::Failed;
     }
     let path = out.join("summary.json");
     if let Err(e) = std::fs::write(&path, serde_json::to_string_pretty(&summary).expect("serialises")) {
@@ -519,33 +501,63 @@ fn finish_summary(
     Some(summary)
 }
 
-fn report(s: &serde_json::Value, out: &Path) {
-    let num = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
-    let t = &s["throughput"];
+/// A coupled run's summary from the processes' (all, or what a failed run
+/// left): the first (the DEM's), with the LBM's liquid front, details, cell
+/// rate and wall time, and both views of the exchange.
+fn merge_coupled(parts: &[(&str, PathBuf, RunSummary)]) -> RunSummary {
+    let mut summary = parts[0].2.clone();
+    let mut exchange = RunExchange::default();
+    for (short, _, part) in parts {
+        let view = match &part.exchange {
+            Some(ExchangeSummary::Process(d)) => Some(d.clone()),
+            _ => None,
+        };
+        if exchange.schedule.is_empty() {
+            exchange.schedule = view.as_ref().map(|d| d.schedule.clone()).unwrap_or_default();
+        }
+        match *short {
+            "dem" => exchange.dem = view,
+            "lbm" => {
+                exchange.lbm = view;
+                summary.liquid_front = part.liquid_front.clone();
+                summary.lbm = part.lbm.clone();
+                summary.throughput.cell_updates_per_s = part.throughput.cell_updates_per_s;
+                summary.wall_seconds_lbm = Some(part.wall_seconds);
+            }
+            _ => {}
+        }
+    }
+    summary.exchange = Some(ExchangeSummary::Run(exchange));
+    summary.method = "dem_lbm".into();
+    summary
+}
+
+fn report(s: &RunSummary, out: &Path) {
+    let t = &s.throughput;
     let mut rates = Vec::new();
-    if let Some(p) = t["particle_steps_per_s"].as_f64() {
+    if let Some(p) = t.particle_steps_per_s {
         rates.push(format!("{p:.3e} particle-steps/s"));
-    } else if let Some(c) = t["cell_updates_per_s"].as_f64() {
+    } else if let Some(c) = t.cell_updates_per_s {
         rates.push(format!("{:.1} MLUPS", c / 1e6));
     }
-    if let Some(p) = t["point_updates_per_s"].as_f64() {
+    if let Some(p) = t.point_updates_per_s {
         rates.push(format!("{p:.3e} point-updates/s"));
     }
     let rate = if rates.is_empty() { "no throughput".to_string() } else { rates.join(", ") };
     eprintln!(
         "coupler: {} ({}) after t = {:.4} s = {:.2} t_ref, {} steps in {:.1} s, {rate}",
-        s["scene"].as_str().unwrap_or("?"),
-        s["status"].as_str().unwrap_or("?"),
-        num(&s["sim_time"]),
-        num(&s["sim_time"]) / num(&s["t_ref"]),
-        s["steps"],
-        num(&s["wall_seconds"]),
+        s.scene,
+        s.status,
+        s.sim_time,
+        s.sim_time / s.t_ref,
+        s.steps,
+        s.wall_seconds,
     );
-    if let Some(runout) = s["runout"].as_f64() {
-        eprintln!("coupler: runout (L_f - L0)/L0 = {runout:.4}; initial porosity {:.4}", num(&s["porosity_initial"]));
+    if s.runout.is_finite() {
+        eprintln!("coupler: runout (L_f - L0)/L0 = {:.4}; initial porosity {:.4}", s.runout, s.porosity_initial);
     }
-    if let Some(front) = s["liquid_front"].as_array().and_then(|f| f.last()) {
-        eprintln!("coupler: liquid front (X_f - L0)/L0 = {:.4} at the end", num(&front["x_norm"]));
+    if let Some(front) = s.liquid_front.last() {
+        eprintln!("coupler: liquid front (X_f - L0)/L0 = {:.4} at the end", front.x_norm);
     }
     eprintln!("coupler: wrote {} and {}", out.join("run.mcap").display(), out.join("summary.json").display());
 }

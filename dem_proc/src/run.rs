@@ -17,7 +17,7 @@ use runtime::process::{Progress, RunOptions};
 use runtime::record::{f32_field, identity_pose, identity_quaternion, log_level, timestamp, ChannelId, RecordError};
 use schemas::measures::{coordination_shares, deposit_profile, front_position, pile_edge, FrontSample};
 use schemas::scene::Scene;
-use schemas::summary::{DemDetails, ExchangeDetails, RunSummary, Throughput};
+use schemas::summary::{DemDetails, ExchangeDetails, ExchangeSummary, RunSummary, Throughput};
 use schemas::topics;
 
 use crate::hydro::{capture_states, hold_loads, Connect};
@@ -445,14 +445,17 @@ fn summary(r: &mut DemRun<'_>, end: &RunEnd) -> RunSummary {
         lbm: None,
         mpm: None,
         wall_seconds_total: None,
-        exchange: end.exchange.map(|x| ExchangeDetails {
-            schedule: scene.spec.coupling.schedule.name().into(),
-            ratio: scene.spec.coupling.ratio,
-            exchanges: x.exchanges,
-            seconds: x.seconds,
-            fraction: x.seconds / wall.max(1e-9),
-            kernel_seconds: 0.0,
-            forcing_gain: None,
+        wall_seconds_lbm: None,
+        exchange: end.exchange.map(|x| {
+            ExchangeSummary::Process(ExchangeDetails {
+                schedule: scene.spec.coupling.schedule.name().into(),
+                ratio: scene.spec.coupling.ratio,
+                exchanges: x.exchanges,
+                seconds: x.seconds,
+                fraction: x.seconds / wall.max(1e-9),
+                kernel_seconds: 0.0,
+                forcing_gain: None,
+            })
         }),
     }
 }

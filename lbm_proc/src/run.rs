@@ -17,7 +17,7 @@ use runtime::process::{Progress, RunOptions};
 use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError};
 use schemas::measures::{front_position, FrontSample};
 use schemas::scene::Scene;
-use schemas::summary::{ExchangeDetails, LbmDetails, RunSummary, Throughput};
+use schemas::summary::{ExchangeDetails, ExchangeSummary, LbmDetails, RunSummary, Throughput};
 use schemas::topics;
 
 use crate::coupling::{Coupling, CouplingError};
@@ -392,14 +392,17 @@ impl Solver for LbmRun<'_> {
             }),
             mpm: None,
             wall_seconds_total: None,
-            exchange: self.forcing.as_ref().zip(end.exchange).map(|(f, x)| ExchangeDetails {
-                schedule: scene.spec.coupling.schedule.name().into(),
-                ratio: scene.spec.coupling.ratio,
-                exchanges: x.exchanges,
-                seconds: x.seconds,
-                fraction: x.seconds / wall.max(1e-9),
-                kernel_seconds: f.coupling_seconds,
-                forcing_gain: Some(scene.spec.coupling.forcing_gain.name().into()),
+            wall_seconds_lbm: None,
+            exchange: self.forcing.as_ref().zip(end.exchange).map(|(f, x)| {
+                ExchangeSummary::Process(ExchangeDetails {
+                    schedule: scene.spec.coupling.schedule.name().into(),
+                    ratio: scene.spec.coupling.ratio,
+                    exchanges: x.exchanges,
+                    seconds: x.seconds,
+                    fraction: x.seconds / wall.max(1e-9),
+                    kernel_seconds: f.coupling_seconds,
+                    forcing_gain: Some(scene.spec.coupling.forcing_gain.name().into()),
+                })
             }),
         }
     }

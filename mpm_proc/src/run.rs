@@ -409,6 +409,7 @@ fn summary(r: &mut MpmRun<'_>, end: &RunEnd) -> RunSummary {
             threads: rayon::current_num_threads(),
         }),
         wall_seconds_total: None,
+        wall_seconds_lbm: None,
         exchange: None,
     }
 }

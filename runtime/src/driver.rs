@@ -581,6 +581,7 @@ mod tests {
                 lbm: None,
                 mpm: None,
                 wall_seconds_total: None,
+                wall_seconds_lbm: None,
                 exchange: None,
             }
         }

@@ -7,12 +7,16 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
 pub struct FrontSample {
     /// Simulated time since the start of the run (gates open at their `release_time`), s.
+    #[serde(deserialize_with = "crate::summary::nan_if_null")]
     pub t: f64,
     /// t / t_ref.
+    #[serde(deserialize_with = "crate::summary::nan_if_null")]
     pub t_norm: f64,
     /// X_f, the x coordinate of the front, m.
+    #[serde(deserialize_with = "crate::summary::nan_if_null")]
     pub x: f64,
     /// (X_f − x_min − L0) / L0, with x_min the domain's lower x (the back wall).
+    #[serde(deserialize_with = "crate::summary::nan_if_null")]
     pub x_norm: f64,
 }
 
