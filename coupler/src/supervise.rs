@@ -161,112 +161,40 @@ fn describe(status: &std::process::ExitStatus) -> String {
     }
 }
 
+/// Runs the scene's solver processes under supervision: output prepared,
+/// the processes started, their progress and messages shown, signals
+/// forwarded, a failure stopping the others, then the summary merged, the
+/// recording collected and the outcome reported as an exit status.
 pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool) -> ExitCode {
     let started = Instant::now();
     let method = scene.method();
     let solvers = solvers_for(method);
-    let mut bins = Vec::new();
-    for (solver, _) in solvers {
-        match sibling_binary(solver) {
-            Ok(p) => bins.push(p),
-            Err(e) => {
-                eprintln!("coupler: {e}");
-                return ExitCode::FAILURE;
-            }
-        }
-    }
-    if let Err(e) = std::fs::create_dir_all(&out) {
-        eprintln!("coupler: cannot create output directory {}: {e}", out.display());
-        return ExitCode::FAILURE;
-    }
-    // A reused output directory must not show a previous run's results as this one's.
-    let mut stale = vec!["run.mcap".to_string(), "summary.json".into()];
-    for (_, short) in solvers {
-        stale.push(format!("{short}.mcap"));
-        stale.push(format!("{short}_summary.json"));
-    }
-    for name in stale {
-        let path = out.join(name);
-        if path.exists() {
-            if let Err(e) = std::fs::remove_file(&path) {
-                eprintln!("coupler: cannot remove the previous run's {}: {e}", path.display());
-                return ExitCode::FAILURE;
-            }
-        }
-    }
-    let scene_toml = scene.to_toml();
-    let scene_file = out.join("scene.toml");
-    if let Err(e) = std::fs::write(&scene_file, &scene_toml) {
-        eprintln!("coupler: cannot write {}: {e} (is the disk full?)", scene_file.display());
-        return ExitCode::FAILURE;
-    }
+    let names: Vec<&str> = solvers.iter().map(|(s, _)| *s).collect();
     let coupled = solvers.len() > 1;
+    let prepared = (|| {
+        let bins = solvers.iter().map(|(solver, _)| sibling_binary(solver)).collect::<Result<Vec<_>, _>>()?;
+        let (scene_toml, scene_file) = prepare_output(&out, solvers, &scene)?;
+        Ok::<_, String>((bins, scene_toml, scene_file))
+    })();
+    let (bins, scene_toml, scene_file) = match prepared {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("coupler: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
     let run_id = new_run_id(&scene);
     // Concurrent: both work at once, one core each; sequential: they take turns with all cores.
     let threads = threads.or((coupled && scene.spec.coupling.schedule == Schedule::Concurrent).then_some(1));
-
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
-    let mut pids = Vec::new();
-    for (k, bin) in bins.iter().enumerate() {
-        // Relative explicit-sphere files resolve against the original scene
-        // directory; the resolved scene embeds them instead.
-        let mut cmd = Command::new(bin);
-        cmd.arg("run").arg(&scene_file).arg("--out").arg(&out).arg("--progress-json").arg("--supervised");
-        if let Some(n) = threads {
-            cmd.arg("--threads").arg(n.to_string());
+    let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+    let launch = Launch { scene_file: &scene_file, out: &out, threads, run_id: coupled.then_some(run_id.as_str()) };
+    let pids = match spawn_solvers(&bins, &launch, tx) {
+        Ok(pids) => pids,
+        Err(e) => {
+            eprintln!("coupler: {e}");
+            return ExitCode::FAILURE;
         }
-        if coupled {
-            cmd.arg("--run-id").arg(&run_id);
-        }
-        cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).stdin(Stdio::null()).kill_on_drop(true);
-        let mut child = match cmd.spawn() {
-            Ok(c) => c,
-            Err(e) => {
-                eprintln!("coupler: cannot start {}: {e}", bin.display());
-                for &pid in &pids {
-                    kill_pid(pid, libc::SIGKILL);
-                }
-                return ExitCode::FAILURE;
-            }
-        };
-        pids.push(child.id());
-        let tx = tx.clone();
-        let lead = k == 0;
-        tokio::spawn(async move {
-            let mut stdout = LossyLines::new(child.stdout.take().expect("piped"));
-            let mut stderr = LossyLines::new(child.stderr.take().expect("piped"));
-            let (mut out_open, mut err_open) = (true, true);
-            let status = loop {
-                tokio::select! {
-                    line = stdout.next_line(), if out_open => match line {
-                        Some(l) => {
-                            if let Ok(ev) = serde_json::from_str::<serde_json::Value>(&l) {
-                                if lead && ev["event"] == "progress" { let _ = tx.send(Event::Progress(ev)); }
-                            }
-                        }
-                        None => out_open = false,
-                    },
-                    line = stderr.next_line(), if err_open => match line {
-                        Some(l) => { let _ = tx.send(Event::Line(l)); }
-                        None => err_open = false,
-                    },
-                    st = child.wait() => break st,
-                }
-            };
-            // Drain what the child wrote just before exiting.
-            while err_open {
-                match tokio::time::timeout(Duration::from_millis(200), stderr.next_line()).await {
-                    Ok(Some(l)) => {
-                        let _ = tx.send(Event::Line(l));
-                    }
-                    _ => err_open = false,
-                }
-            }
-            let _ = tx.send(Event::Exited(k, status));
-        });
-    }
-    drop(tx);
-    let names: Vec<&str> = solvers.iter().map(|(s, _)| *s).collect();
+    };
     eprintln!(
         "coupler: running {} ({}) with {}{}, output in {}",
         scene.spec.scene.name,
@@ -279,18 +207,156 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
         },
         out.display()
     );
+    let Some(ended) = supervise(rx, &pids, &names, quiet).await else {
+        return ExitCode::FAILURE;
+    };
+    if coupled {
+        let cleaned = runtime::link::cleanup_stale(Some(&run_id));
+        if cleaned > 0 {
+            eprintln!("coupler: removed the shared memory of {cleaned} dead process(es) of run {run_id}");
+        }
+    }
+    let interrupted = ended.interrupts > 0;
+    let failed = ended.first_failure.is_some();
+    let summary = finish_summary(&out, solvers, started.elapsed().as_secs_f64(), interrupted, failed);
+    let recording = collect_recording(&out, solvers, &scene_toml, summary.as_ref());
+    conclude(&ended, &names, coupled, summary.as_ref(), &recording, &out)
+}
 
+/// Creates `out`, removes a previous run's results from it (a reused
+/// directory must not show them as this run's) and writes the scene as
+/// resolved. Returns the scene's TOML and its file.
+fn prepare_output(out: &Path, solvers: &[(&str, &str)], scene: &Scene) -> Result<(String, PathBuf), String> {
+    std::fs::create_dir_all(out).map_err(|e| format!("cannot create output directory {}: {e}", out.display()))?;
+    let mut stale = vec!["run.mcap".to_string(), "summary.json".into()];
+    for (_, short) in solvers {
+        stale.push(format!("{short}.mcap"));
+        stale.push(format!("{short}_summary.json"));
+    }
+    for name in stale {
+        let path = out.join(name);
+        if path.exists() {
+            std::fs::remove_file(&path)
+                .map_err(|e| format!("cannot remove the previous run's {}: {e}", path.display()))?;
+        }
+    }
+    let scene_toml = scene.to_toml();
+    let scene_file = out.join("scene.toml");
+    std::fs::write(&scene_file, &scene_toml)
+        .map_err(|e| format!("cannot write {}: {e} (is the disk full?)", scene_file.display()))?;
+    Ok((scene_toml, scene_file))
+}
+
+/// How each solver process is started.
+struct Launch<'a> {
+    /// The resolved scene (relative explicit-sphere files resolve against
+    /// the original scene's directory; the resolved scene embeds them).
+    scene_file: &'a Path,
+    out: &'a Path,
+    threads: Option<usize>,
+    /// Coupled runs: the link's run id.
+    run_id: Option<&'a str>,
+}
+
+/// Starts one process per binary, each watched by a task that forwards its
+/// progress (the first process's only), its stderr lines and its exit.
+/// Returns their pids; if one cannot start, those started are killed.
+fn spawn_solvers(
+    bins: &[PathBuf],
+    launch: &Launch<'_>,
+    tx: tokio::sync::mpsc::UnboundedSender<Event>,
+) -> Result<Vec<Option<u32>>, String> {
+    let mut pids = Vec::new();
+    for (k, bin) in bins.iter().enumerate() {
+        let mut cmd = Command::new(bin);
+        cmd.arg("run").arg(launch.scene_file).arg("--out").arg(launch.out);
+        cmd.arg("--progress-json").arg("--supervised");
+        if let Some(n) = launch.threads {
+            cmd.arg("--threads").arg(n.to_string());
+        }
+        if let Some(id) = launch.run_id {
+            cmd.arg("--run-id").arg(id);
+        }
+        cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).stdin(Stdio::null()).kill_on_drop(true);
+        let child = match cmd.spawn() {
+            Ok(c) => c,
+            Err(e) => {
+                for &pid in &pids {
+                    kill_pid(pid, libc::SIGKILL);
+                }
+                return Err(format!("cannot start {}: {e}", bin.display()));
+            }
+        };
+        pids.push(child.id());
+        tokio::spawn(watch_child(child, k, tx.clone()));
+    }
+    Ok(pids)
+}
+
+/// Forwards process `k`'s progress events (when it leads, `k == 0`) and
+/// stderr lines to the supervisor, then its exit.
+async fn watch_child(mut child: tokio::process::Child, k: usize, tx: tokio::sync::mpsc::UnboundedSender<Event>) {
+    let lead = k == 0;
+    let mut stdout = LossyLines::new(child.stdout.take().expect("piped"));
+    let mut stderr = LossyLines::new(child.stderr.take().expect("piped"));
+    let (mut out_open, mut err_open) = (true, true);
+    let status = loop {
+        tokio::select! {
+            line = stdout.next_line(), if out_open => match line {
+                Some(l) => {
+                    if let Ok(ev) = serde_json::from_str::<serde_json::Value>(&l) {
+                        if lead && ev["event"] == "progress" { let _ = tx.send(Event::Progress(ev)); }
+                    }
+                }
+                None => out_open = false,
+            },
+            line = stderr.next_line(), if err_open => match line {
+                Some(l) => { let _ = tx.send(Event::Line(l)); }
+                None => err_open = false,
+            },
+            st = child.wait() => break st,
+        }
+    };
+    // Drain what the child wrote just before exiting.
+    while err_open {
+        match tokio::time::timeout(Duration::from_millis(200), stderr.next_line()).await {
+            Ok(Some(l)) => {
+                let _ = tx.send(Event::Line(l));
+            }
+            _ => err_open = false,
+        }
+    }
+    let _ = tx.send(Event::Exited(k, status));
+}
+
+/// How the processes ended.
+struct Ended {
+    statuses: Vec<Option<std::process::ExitStatus>>,
+    /// The first process that ended abnormally, and how.
+    first_failure: Option<(usize, std::process::ExitStatus)>,
+    /// SIGINT/SIGTERM received.
+    interrupts: u32,
+}
+
+/// Until every process has exited: shows progress and lines, forwards
+/// signals, and when one process ends lets the others finish (normal end)
+/// or stops them (failure), killing any that outlive its grace. None when
+/// the signal handlers cannot be installed.
+async fn supervise(
+    mut rx: tokio::sync::mpsc::UnboundedReceiver<Event>,
+    pids: &[Option<u32>],
+    names: &[&str],
+    quiet: bool,
+) -> Option<Ended> {
     let (mut sigint, mut sigterm) = match (signal(SignalKind::interrupt()), signal(SignalKind::terminate())) {
         (Ok(a), Ok(b)) => (a, b),
         _ => {
             eprintln!("coupler: cannot install signal handlers");
-            return ExitCode::FAILURE;
+            return None;
         }
     };
     let mut bar = Bar::new(quiet);
-    let mut interrupts = 0;
-    let mut statuses: Vec<Option<std::process::ExitStatus>> = vec![None; solvers.len()];
-    let mut first_failure: Option<(usize, std::process::ExitStatus)> = None;
+    let mut ended = Ended { statuses: vec![None; names.len()], first_failure: None, interrupts: 0 };
     let mut kill_at: Option<tokio::time::Instant> = None;
     let far = tokio::time::Instant::now() + Duration::from_secs(86400 * 365);
     loop {
@@ -306,31 +372,16 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
                             std::os::unix::process::ExitStatusExt::from_raw(1 << 8)
                         }
                     };
-                    statuses[k] = Some(st);
-                    let running: Vec<usize> = (0..names.len()).filter(|&j| statuses[j].is_none()).collect();
-                    let normal = st.success() || (interrupts > 0 && st.code() == Some(EXIT_INTERRUPTED));
-                    if !normal && first_failure.is_none() {
-                        first_failure = Some((k, st));
-                    }
-                    if !running.is_empty() {
-                        if normal {
-                            kill_at.get_or_insert(tokio::time::Instant::now() + PEER_FINISH_GRACE);
-                        } else {
-                            let others: Vec<&str> = running.iter().map(|&j| names[j]).collect();
-                            bar.println(&format!("coupler: {} ended ({}); stopping {}", names[k], describe(&st), others.join(", ")));
-                            for &j in &running {
-                                kill_pid(pids[j], libc::SIGINT);
-                            }
-                            kill_at = Some(tokio::time::Instant::now() + PEER_STOP_GRACE);
-                        }
+                    if let Some(deadline) = process_exited(&mut ended, k, st, pids, names, &bar) {
+                        kill_at = Some(match kill_at { Some(t) if deadline > t => t, _ => deadline });
                     }
                 }
                 None => break,
             },
-            _ = sigint.recv() => { interrupts += 1; forward(&pids, &statuses, &names, interrupts, &bar); }
-            _ = sigterm.recv() => { interrupts += 1; forward(&pids, &statuses, &names, interrupts, &bar); }
+            _ = sigint.recv() => { ended.interrupts += 1; forward(pids, &ended.statuses, names, ended.interrupts, &bar); }
+            _ = sigterm.recv() => { ended.interrupts += 1; forward(pids, &ended.statuses, names, ended.interrupts, &bar); }
             _ = tokio::time::sleep_until(kill_at.unwrap_or(far)), if kill_at.is_some() => {
-                for j in (0..names.len()).filter(|&j| statuses[j].is_none()) {
+                for j in (0..names.len()).filter(|&j| ended.statuses[j].is_none()) {
                     bar.println(&format!("coupler: {} did not stop in time; killing it", names[j]));
                     kill_pid(pids[j], libc::SIGKILL);
                 }
@@ -339,24 +390,55 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
         }
     }
     bar.finish();
-    if coupled {
-        let cleaned = runtime::link::cleanup_stale(Some(&run_id));
-        if cleaned > 0 {
-            eprintln!("coupler: removed the shared memory of {cleaned} dead process(es) of run {run_id}");
-        }
-    }
+    Some(ended)
+}
 
-    let interrupted = interrupts > 0;
-    let summary = finish_summary(&out, solvers, started.elapsed().as_secs_f64(), interrupted, first_failure.is_some());
-    let recording = collect_recording(&out, solvers, &scene_toml, summary.as_ref());
-    let recorded = recording.exists();
-    let codes: Vec<Option<i32>> = statuses.iter().map(|s| s.and_then(|s| s.code())).collect();
-    if let Some((k, st)) = first_failure {
-        if codes[k] == Some(EXIT_BAD_SCENE) {
+/// Process `k` exited with `st`: notes it, and with others still running
+/// returns the deadline by which they must be gone (a normal end gives
+/// them time to finish; a failure stops them at once).
+fn process_exited(
+    ended: &mut Ended,
+    k: usize,
+    st: std::process::ExitStatus,
+    pids: &[Option<u32>],
+    names: &[&str],
+    bar: &Bar,
+) -> Option<tokio::time::Instant> {
+    ended.statuses[k] = Some(st);
+    let running: Vec<usize> = (0..names.len()).filter(|&j| ended.statuses[j].is_none()).collect();
+    let normal = st.success() || (ended.interrupts > 0 && st.code() == Some(EXIT_INTERRUPTED));
+    if !normal && ended.first_failure.is_none() {
+        ended.first_failure = Some((k, st));
+    }
+    if running.is_empty() {
+        return None;
+    }
+    if normal {
+        return Some(tokio::time::Instant::now() + PEER_FINISH_GRACE);
+    }
+    let others: Vec<&str> = running.iter().map(|&j| names[j]).collect();
+    bar.println(&format!("coupler: {} ended ({}); stopping {}", names[k], describe(&st), others.join(", ")));
+    for &j in &running {
+        kill_pid(pids[j], libc::SIGINT);
+    }
+    Some(tokio::time::Instant::now() + PEER_STOP_GRACE)
+}
+
+/// The exit status and the last words of a run.
+fn conclude(
+    ended: &Ended,
+    names: &[&str],
+    coupled: bool,
+    summary: Option<&RunSummary>,
+    recording: &Path,
+    out: &Path,
+) -> ExitCode {
+    if let Some((k, st)) = ended.first_failure {
+        if st.code() == Some(EXIT_BAD_SCENE) {
             eprintln!("coupler: {} rejected the scene (exit status 2); see the message above", names[k]);
             return ExitCode::from(EXIT_BAD_SCENE as u8);
         }
-        if interrupts > 1 {
+        if ended.interrupts > 1 {
             eprintln!("coupler: killed after a second interrupt; {} may lack its summary section (streaming MCAP readers still read it)", recording.display());
             return ExitCode::from(EXIT_INTERRUPTED as u8);
         }
@@ -369,17 +451,17 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
         );
         return ExitCode::FAILURE;
     }
-    if interrupted {
-        if recorded {
+    if ended.interrupts > 0 {
+        if recording.exists() {
             eprintln!("coupler: run interrupted; the recording up to the interruption is in {}", recording.display());
         } else {
             eprintln!("coupler: run interrupted before the collapse started; nothing was recorded");
         }
         return ExitCode::from(EXIT_INTERRUPTED as u8);
     }
-    match &summary {
+    match summary {
         Some(s) => {
-            report(s, &out);
+            report(s, out);
             ExitCode::SUCCESS
         }
         None => {
