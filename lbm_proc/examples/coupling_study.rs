@@ -56,153 +56,147 @@ fn main() {
     let wants = |s: &str| sections.is_empty() || sections.contains(&s);
     let resolutions: Vec<f64> = if quick { vec![PAPER_D_CELLS] } else { vec![PAPER_D_CELLS, 6.0, 8.0] };
     let started = Instant::now();
-
-    if wants("arrays") {
-        println!("\n## Simple-cubic array, Stokes drag K = F/(3 pi mu D U_s) against Zick & Homsy 1982\n");
-        let mut cases = Vec::new();
-        for &d in &resolutions {
-            for (name, fluid) in conditions(d) {
-                for &phi in &ARRAY_FRACTIONS {
-                    cases.extend(rules(fluid).map(|gain| (d, name, fluid, phi, gain)));
-                }
-            }
+    let studies: [(&str, &dyn Fn()); 5] = [
+        ("arrays", &|| arrays(&resolutions)),
+        ("permeability", &|| permeability(&resolutions)),
+        ("ergun", &|| ergun(&resolutions)),
+        ("settling", &|| settling(&resolutions, quick)),
+        ("tank-width", &tank_width),
+    ];
+    for (name, study) in studies {
+        if wants(name) {
+            study();
+            eprintln!("{name} done after {:.0} s", started.elapsed().as_secs_f64());
         }
-        let results: Vec<_> = cases
-            .par_iter()
-            .map(|&(d, name, fluid, phi, gain)| {
-                (d, name, fluid, phi, gain, simple_cubic_drag(phi, d, fluid, gain, MAX_STEPS))
-            })
-            .collect();
-        println!(
-            "| D/dx | fluid | tau0 | rule | {} | mean abs |",
-            ARRAY_FRACTIONS.map(|p| format!("phi {p}")).join(" | ")
-        );
-        println!("|---|---|---|---|{}---|", "---|".repeat(ARRAY_FRACTIONS.len()));
-        for &d in &resolutions {
-            for (name, fluid) in conditions(d) {
-                for gain in ForcingGain::ALL {
-                    let row: Vec<_> =
-                        results.iter().filter(|r| r.0 == d && r.1 == name && r.4 == gain).map(|r| &r.5).collect();
-                    if row.is_empty() {
-                        continue;
-                    }
-                    let cells: Vec<String> = row
-                        .iter()
-                        .map(|r| format!("{}{}", pct(r.error), if r.converged { "" } else { " (nc)" }))
-                        .collect();
-                    let mean = row.iter().map(|r| r.error.abs()).sum::<f64>() / row.len() as f64;
-                    println!(
-                        "| {d:.2} | {name} | {:.5} | {} | {} | {:.1} % |",
-                        fluid.tau,
-                        gain.name(),
-                        cells.join(" | "),
-                        100.0 * mean
-                    );
-                }
-            }
-        }
-        println!("\nBoxes (D actual / box / spheres per edge / steps):");
-        for r in &results {
-            println!(
-                "  D/dx {:.2} {} {} phi {}: D = {:.3}, box {}, {}^3 spheres, {} steps, K = {:.4} (ZH {})",
-                r.0,
-                r.1,
-                r.4.name(),
-                r.3,
-                r.5.d,
-                r.5.box_cells,
-                r.5.copies,
-                r.5.steps,
-                r.5.k,
-                r.5.reference
-            );
-        }
-        eprintln!("arrays done after {:.0} s", started.elapsed().as_secs_f64());
     }
+}
 
-    if wants("permeability") {
-        println!("\n## Random packing (64 grains, porosity ~0.40), creeping-flow permeability against Kozeny-Carman\n");
-        let mut cases = Vec::new();
-        for &d in &resolutions {
-            for (name, fluid) in conditions(d) {
-                cases.extend(rules(fluid).map(|gain| (d, name, fluid, gain)));
+/// Simple-cubic arrays: Stokes drag against Zick & Homsy 1982, every rule.
+fn arrays(resolutions: &[f64]) {
+    println!("\n## Simple-cubic array, Stokes drag K = F/(3 pi mu D U_s) against Zick & Homsy 1982\n");
+    let mut cases = Vec::new();
+    for &d in resolutions {
+        for (name, fluid) in conditions(d) {
+            for &phi in &ARRAY_FRACTIONS {
+                cases.extend(rules(fluid).map(|gain| (d, name, fluid, phi, gain)));
             }
         }
-        let results: Vec<_> = cases
-            .par_iter()
-            .map(|&(d, name, fluid, gain)| {
-                let packing = column_packing(d);
-                let (k, flow) = packing_permeability(&packing, fluid, gain, PACKING_MAX_STEPS);
-                (d, name, fluid, gain, packing.porosity, k / kozeny_carman(packing.porosity, packing.d), flow)
-            })
-            .collect();
-        println!("| D/dx | fluid | tau0 | rule | porosity | k / k_KC | steps |");
-        println!("|---|---|---|---|---|---|---|");
-        for r in &results {
-            println!(
-                "| {:.2} | {} | {:.5} | {} | {:.4} | {:.3}{} | {} |",
-                r.0,
-                r.1,
-                r.2.tau,
-                r.3.name(),
-                r.4,
-                r.5,
-                if r.6.converged { "" } else { " (nc)" },
-                r.6.steps
-            );
-        }
-        eprintln!("permeability done after {:.0} s", started.elapsed().as_secs_f64());
     }
-
-    if wants("ergun") {
-        println!("\n## Random packing, paper water: drag against Ergun at Re_p = q D/nu\n");
-        let reynolds = [1.0, 10.0, 100.0];
-        let mut cases = Vec::new();
-        for &d in &resolutions {
-            for &re in &reynolds {
-                for gain in ForcingGain::ALL {
-                    cases.push((d, re, gain));
-                }
-            }
-        }
-        let results: Vec<_> = cases
-            .par_iter()
-            .map(|&(d, re, gain)| {
-                let packing = column_packing(d);
-                let fluid = FluidCondition::paper_water(d);
-                let (error, flow) = packing_ergun(&packing, fluid, gain, re, PACKING_MAX_STEPS);
-                (d, re, gain, fluid, error, flow, packing.d)
-            })
-            .collect();
-        println!("| D/dx | tau0 | rule | {} |", reynolds.map(|r| format!("Re_p {r}: drag err (Re_p got)")).join(" | "));
-        println!("|---|---|---|{}", "---|".repeat(reynolds.len()));
-        for &d in &resolutions {
+    let results: Vec<_> = cases
+        .par_iter()
+        .map(|&(d, name, fluid, phi, gain)| {
+            (d, name, fluid, phi, gain, simple_cubic_drag(phi, d, fluid, gain, MAX_STEPS))
+        })
+        .collect();
+    println!("| D/dx | fluid | tau0 | rule | {} | mean abs |", ARRAY_FRACTIONS.map(|p| format!("phi {p}")).join(" | "));
+    println!("|---|---|---|---|{}---|", "---|".repeat(ARRAY_FRACTIONS.len()));
+    for &d in resolutions {
+        for (name, fluid) in conditions(d) {
             for gain in ForcingGain::ALL {
-                let row: Vec<_> = results.iter().filter(|r| r.0 == d && r.2 == gain).collect();
-                let cells: Vec<String> = row
-                    .iter()
-                    .map(|r| {
-                        format!(
-                            "{} ({:.2}){}",
-                            pct(r.4),
-                            r.5.q * r.6 / r.3.nu(),
-                            if r.5.converged { "" } else { " (nc)" }
-                        )
-                    })
-                    .collect();
-                println!("| {d:.2} | {:.5} | {} | {} |", row[0].3.tau, gain.name(), cells.join(" | "));
+                let row: Vec<_> =
+                    results.iter().filter(|r| r.0 == d && r.1 == name && r.4 == gain).map(|r| &r.5).collect();
+                if row.is_empty() {
+                    continue;
+                }
+                let cells: Vec<String> =
+                    row.iter().map(|r| format!("{}{}", pct(r.error), if r.converged { "" } else { " (nc)" })).collect();
+                let mean = row.iter().map(|r| r.error.abs()).sum::<f64>() / row.len() as f64;
+                println!(
+                    "| {d:.2} | {name} | {:.5} | {} | {} | {:.1} % |",
+                    fluid.tau,
+                    gain.name(),
+                    cells.join(" | "),
+                    100.0 * mean
+                );
             }
         }
-        eprintln!("ergun done after {:.0} s", started.elapsed().as_secs_f64());
     }
+    println!("\nBoxes (D actual / box / spheres per edge / steps):");
+    for r in &results {
+        println!(
+            "  D/dx {:.2} {} {} phi {}: D = {:.3}, box {}, {}^3 spheres, {} steps, K = {:.4} (ZH {})",
+            r.0,
+            r.1,
+            r.4.name(),
+            r.3,
+            r.5.d,
+            r.5.box_cells,
+            r.5.copies,
+            r.5.steps,
+            r.5.k,
+            r.5.reference
+        );
+    }
+}
 
-    if wants("settling") {
-        settling(&resolutions, quick);
-        eprintln!("settling done after {:.0} s", started.elapsed().as_secs_f64());
+/// Random packings: creeping-flow permeability against Kozeny–Carman.
+fn permeability(resolutions: &[f64]) {
+    println!("\n## Random packing (64 grains, porosity ~0.40), creeping-flow permeability against Kozeny-Carman\n");
+    let mut cases = Vec::new();
+    for &d in resolutions {
+        for (name, fluid) in conditions(d) {
+            cases.extend(rules(fluid).map(|gain| (d, name, fluid, gain)));
+        }
     }
-    if wants("tank-width") {
-        tank_width();
-        eprintln!("tank-width done after {:.0} s", started.elapsed().as_secs_f64());
+    let results: Vec<_> = cases
+        .par_iter()
+        .map(|&(d, name, fluid, gain)| {
+            let packing = column_packing(d);
+            let (k, flow) = packing_permeability(&packing, fluid, gain, PACKING_MAX_STEPS);
+            (d, name, fluid, gain, packing.porosity, k / kozeny_carman(packing.porosity, packing.d), flow)
+        })
+        .collect();
+    println!("| D/dx | fluid | tau0 | rule | porosity | k / k_KC | steps |");
+    println!("|---|---|---|---|---|---|---|");
+    for r in &results {
+        println!(
+            "| {:.2} | {} | {:.5} | {} | {:.4} | {:.3}{} | {} |",
+            r.0,
+            r.1,
+            r.2.tau,
+            r.3.name(),
+            r.4,
+            r.5,
+            if r.6.converged { "" } else { " (nc)" },
+            r.6.steps
+        );
+    }
+}
+
+/// Random packings in the paper's water: drag against Ergun at Re_p 1–100.
+fn ergun(resolutions: &[f64]) {
+    println!("\n## Random packing, paper water: drag against Ergun at Re_p = q D/nu\n");
+    let reynolds = [1.0, 10.0, 100.0];
+    let mut cases = Vec::new();
+    for &d in resolutions {
+        for &re in &reynolds {
+            for gain in ForcingGain::ALL {
+                cases.push((d, re, gain));
+            }
+        }
+    }
+    let results: Vec<_> = cases
+        .par_iter()
+        .map(|&(d, re, gain)| {
+            let packing = column_packing(d);
+            let fluid = FluidCondition::paper_water(d);
+            let (error, flow) = packing_ergun(&packing, fluid, gain, re, PACKING_MAX_STEPS);
+            (d, re, gain, fluid, error, flow, packing.d)
+        })
+        .collect();
+    println!("| D/dx | tau0 | rule | {} |", reynolds.map(|r| format!("Re_p {r}: drag err (Re_p got)")).join(" | "));
+    println!("|---|---|---|{}", "---|".repeat(reynolds.len()));
+    for &d in resolutions {
+        for gain in ForcingGain::ALL {
+            let row: Vec<_> = results.iter().filter(|r| r.0 == d && r.2 == gain).collect();
+            let cells: Vec<String> = row
+                .iter()
+                .map(|r| {
+                    format!("{} ({:.2}){}", pct(r.4), r.5.q * r.6 / r.3.nu(), if r.5.converged { "" } else { " (nc)" })
+                })
+                .collect();
+            println!("| {d:.2} | {:.5} | {} | {} |", row[0].3.tau, gain.name(), cells.join(" | "));
+        }
     }
 }
 

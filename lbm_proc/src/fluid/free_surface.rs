@@ -345,13 +345,32 @@ impl<T: Real> Fluid<T> {
         Ok(())
     }
 
-    /// Steps 3–9 of the free-surface step (module comment); runs after the
-    /// kernel has streamed, collided and added Δm to every interface mass.
+    /// Steps 3–9 of the free-surface step (module comment), each a stage
+    /// below. Pre: the kernel has streamed, collided and added Δm to every
+    /// interface mass; the interface list is the step's before. Post: flags,
+    /// masses, fills and the interface list consistent again, the liquid
+    /// mass conserved up to the pending excess (step 8).
     pub(super) fn update_surface(&mut self) {
         let mut l = std::mem::take(&mut self.scratch.lists);
-        let kappa = self.params.kappa;
+        self.mark_conversions(&mut l);
+        self.fill_marked(&mut l);
+        self.empty_marked(&mut l);
+        self.apply_conversions(&mut l);
+        let mut pending = 0.0;
+        self.share_excess(&mut l, &mut pending);
+        self.cap_shares(&mut l, &mut pending);
+        self.overflow_to_liquid(&mut l, &mut pending);
+        self.add_shares(&l, pending);
+        // 9. Row classes of the rows whose flags changed.
+        l.rows.sort_unstable();
+        l.rows.dedup();
+        self.reclassify_rows(&l.rows);
+        self.scratch.lists = l;
+    }
 
-        // 3–4. Mark conversions, in parallel: a cell's mark reads only the
+    /// Steps 3–4: marks the interface cells that fill or empty.
+    fn mark_conversions(&mut self, l: &mut Lists) {
+        // In parallel: a cell's mark reads only the
         // flags (all marks are written after) and its own populations, so it
         // does not depend on the order. The densities are kept for the fills
         // (step 7) and the pending return (step 8).
@@ -362,7 +381,7 @@ impl<T: Real> Fluid<T> {
         fluid.scratch.interface.par_chunks(MARK_CHUNK).zip(l.marks.par_chunks_mut(MARK_CHUNK)).for_each(
             |(cells, marks)| {
                 for (&c, mark) in cells.iter().zip(marks) {
-                    *mark = fluid.conversion_mark(c, kappa);
+                    *mark = fluid.conversion_mark(c, self.params.kappa);
                 }
             },
         );
@@ -379,8 +398,12 @@ impl<T: Real> Fluid<T> {
                 Mark::Stays => {}
             }
         }
+    }
 
-        // 5. Filled cells: gas neighbours become interface; neighbours
+    /// Step 5: the gas neighbours of filled cells become interface, with
+    /// populations from their liquid neighbours.
+    fn fill_marked(&mut self, l: &mut Lists) {
+        // Gas neighbours become interface; neighbours
         // marked to empty stay interface (else F would touch G).
         l.from_gas.clear();
         for &c in &l.filled {
@@ -406,8 +429,11 @@ impl<T: Real> Fluid<T> {
             self.state.mass[c] = 0.0;
             self.scratch.interface_density[c] = self.density_at(c);
         }
+    }
 
-        // 6. Emptied cells: fluid neighbours become interface, full. A
+    /// Step 6: the fluid neighbours of emptied cells become interface.
+    fn empty_marked(&mut self, l: &mut Lists) {
+        // Fluid neighbours become interface, full. A
         // neighbour marked to fill cannot remain here: it would have
         // un-marked this cell in step 5 (neighbourhoods are symmetric).
         l.from_fluid.clear();
@@ -427,8 +453,11 @@ impl<T: Real> Fluid<T> {
                 }
             }
         }
+    }
 
-        // 7. Apply the flags and compute the excess masses.
+    /// Step 7: the new flags, each converted cell's excess mass, and the
+    /// new interface list with its fills.
+    fn apply_conversions(&mut self, l: &mut Lists) {
         l.excess.clear();
         l.rows.clear();
         let nx = self.state.dims[0];
@@ -479,12 +508,15 @@ impl<T: Real> Fluid<T> {
         for (&c, &rho) in self.scratch.interface.iter().zip(&l.next_density) {
             self.scratch.fill[c] = self.state.mass[c] / rho;
         }
+    }
 
-        // 8. Distribute the excess: all shares first (from the ε above),
+    /// Step 8, first part: each converted cell's excess as shares to its
+    /// neighbours; what no neighbour can take goes to `pending`.
+    fn share_excess(&self, l: &mut Lists, pending: &mut f64) {
+        // All shares first (from the ε above),
         // then add them, so the result does not depend on the order.
         l.shares.clear();
-        let mut pending = 0.0;
-        let fluid = &*self;
+        let fluid = self;
         l.share_source.clear();
         for (k, &(c, excess, sign)) in l.excess.iter().enumerate() {
             let nbs = &fluid.neighbours(c);
@@ -517,7 +549,7 @@ impl<T: Real> Fluid<T> {
                 l.shares.extend(receivers(flag).map(|(_, nb)| (nb, 1.0 / count)));
             }
             let Some(last) = l.shares.len().checked_sub(1).filter(|&last| last >= start) else {
-                pending += excess;
+                *pending += excess;
                 continue;
             };
             // The last receiver takes what is left, so the shares sum to the excess.
@@ -529,6 +561,11 @@ impl<T: Real> Fluid<T> {
             l.shares[last].1 = excess - given;
             l.share_source.resize(l.shares.len(), k);
         }
+    }
+
+    /// Step 8, second part: the capacity of each receiver.
+    fn cap_shares(&self, l: &mut Lists, pending: &mut f64) {
+        let fluid = self;
         // Capacity: an interface cell takes at most the room it has before it
         // would fill, (1 + κ)ρ − m, from all sources together; its shares are
         // scaled down to fit and each source's cut goes to the source's fluid
@@ -575,7 +612,7 @@ impl<T: Real> Fluid<T> {
                     let keep = l.shares[s].1 * factor;
                     let cut = l.shares[s].1 - keep;
                     if taking {
-                        pending += cut;
+                        *pending += cut;
                     } else {
                         l.overflow[l.share_source[s]] += cut;
                     }
@@ -584,6 +621,12 @@ impl<T: Real> Fluid<T> {
             }
             g = end;
         }
+    }
+
+    /// Step 8, third part: what a source could not give its interface
+    /// neighbours goes to its fluid neighbours (as density), or to `pending`.
+    fn overflow_to_liquid(&self, l: &mut Lists, pending: &mut f64) {
+        let fluid = self;
         for (k, &(c, _, _)) in l.excess.iter().enumerate() {
             let overflow = l.overflow[k];
             if overflow <= 0.0 {
@@ -593,7 +636,7 @@ impl<T: Real> Fluid<T> {
                 (1..Q).filter_map(|i| fluid.neighbour(c, i)).filter(|&nb| fluid.state.flags[nb] == flags::FLUID);
             let count = fluid_nbs.clone().count();
             if count == 0 {
-                pending += overflow;
+                *pending += overflow;
                 continue;
             }
             let each = overflow / count as f64;
@@ -604,6 +647,11 @@ impl<T: Real> Fluid<T> {
                 l.shares.push((nb, share));
             }
         }
+    }
+
+    /// Step 8, last part: the shares added, the receivers' fills updated,
+    /// the pending excess returned once it is large enough.
+    fn add_shares(&mut self, l: &Lists, pending: f64) {
         self.state.pending_excess += pending;
         for &(nb, share) in &l.shares {
             if self.state.flags[nb] == flags::INTERFACE {
@@ -627,12 +675,6 @@ impl<T: Real> Fluid<T> {
         if self.state.pending_excess.abs() >= PENDING_RETURN && self.scratch.fluid_count > 0 {
             self.return_pending_excess(&l.next_density);
         }
-
-        // 9. Row classes of the rows whose flags changed.
-        l.rows.sort_unstable();
-        l.rows.dedup();
-        self.reclassify_rows(&l.rows);
-        self.scratch.lists = l;
     }
 
     /// Gives the pending excess back to the liquid through the free surface:
