@@ -5,41 +5,10 @@ use std::path::Path;
 use schemas::scene::{Collision, Condition, Method};
 use schemas::Scene;
 
-const VALID: &str = r#"
-[scene]
-name = "t"
-[domain]
-min = [0.0, 0.0, 0.0]
-max = [0.7, 0.05, 0.12]
-gravity = [0.0, 0.0, -9.81]
-walls = ["x_min", "x_max", "y_min", "y_max", "z_min"]
-[[gates]]
-name = "gate"
-point = [0.04, 0.0, 0.0]
-normal = [-2.0, 0.0, 0.0]
-release_time = 0.0
-[[particles]]
-name = "beads"
-density = 2600.0
-diameter = 2.5e-3
-[particles.packing]
-method = "deposit"
-region = { min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }
-porosity = 0.42
-seed = 1
-[dem]
-normal_stiffness = 2000.0
-restitution = 0.88
-friction = 0.577
-rolling_friction = 0.05
-[output]
-end_time = 0.6
-record_interval = 0.01
-[analysis]
-column_length = 0.04
-column_height = 0.06
-condition = "dry"
-"#;
+/// scenes/validation/minimal_dry_column.toml, as text to mutate.
+const VALID: &str = include_str!("../../scenes/validation/minimal_dry_column.toml");
+/// scenes/validation/minimal_saturated_column.toml (its lattice table last).
+const SATURATED: &str = include_str!("../../scenes/validation/minimal_saturated_column.toml");
 
 fn load(text: &str, set: &[&str]) -> Result<Scene, schemas::SceneError> {
     let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
@@ -57,12 +26,10 @@ fn valid_scene_loads_with_defaults() {
     assert!((s.reference_time() - 0.0782).abs() < 5e-5);
 }
 
-const WATER: &str = "[[fluids]]\nname = \"water\"\ndensity = 1000.0\nviscosity = 1e-3\nregion = { min = [0.0, 0.0, 0.0], max = [0.04, 0.05, 0.06] }\n[lbm]\nspacing = 6e-4\ntime_step = 8e-5\n";
-
 #[test]
 fn saturated_reference_time_uses_reduced_gravity() {
-    let text = format!("{VALID}\n{WATER}");
-    let s = load(&text, &["analysis.condition=\"saturated\""]).unwrap();
+    let text = SATURATED;
+    let s = load(text, &[]).unwrap();
     assert_eq!(s.spec.analysis.condition, Condition::Saturated);
     assert_eq!(s.method(), Method::DemLbm);
     // g' = g (2600 - 1000)/2600 = 6.037 m/s²; t_ref = 0.0997 s for H0 = 0.06 m.
@@ -113,12 +80,12 @@ const BAD_VALUES: &[(&str, &str, &str)] = &[
 
 #[test]
 fn lbm_table_defaults_and_errors() {
-    let text = format!("{VALID}\n{WATER}");
-    let s = load(&text, &[]).unwrap();
+    let text = SATURATED;
+    let s = load(text, &[]).unwrap();
     let lbm = s.lbm();
     assert_eq!((lbm.smagorinsky, lbm.collision, lbm.trt_magic), (0.16, Collision::Bgk, 3.0 / 16.0));
-    let without = VALID.to_string() + "\n" + &WATER[..WATER.find("[lbm]").unwrap()];
-    let e = load(&without, &[]).unwrap_err();
+    let without = &SATURATED[..SATURATED.find("[lbm]").unwrap()];
+    let e = load(without, &[]).unwrap_err();
     assert!(e.names_key("lbm") && e.to_string().contains("spacing"), "{e}");
     for (set, key, reason) in [
         ("lbm.spacing=0", "lbm.spacing", "> 0"),
@@ -129,7 +96,7 @@ fn lbm_table_defaults_and_errors() {
         ("lbm.mach_limit=1.5", "lbm.mach_limit", "(0, 1)"),
         ("lbm.collision=\"cumulant\"", "lbm.collision", "unknown variant"),
     ] {
-        let e = load(&text, &[set]).expect_err(set);
+        let e = load(text, &[set]).expect_err(set);
         assert!(e.names_key(key), "{set}: error does not name {key}: {e}");
         assert!(e.to_string().contains(reason), "{set}: reason should mention {reason:?}: {e}");
     }
@@ -374,12 +341,12 @@ fn explicit_method_must_match_the_blocks() {
         let e = load(VALID, &[set]).expect_err(set);
         assert!(e.names_key("scene.method") && e.to_string().contains(&format!("implies {implied}")), "{set}: {e}");
     }
-    let sat = format!("{VALID}\n{WATER}");
-    let e = load(&sat, &["scene.method=\"dem\""]).unwrap_err();
+    let sat = SATURATED;
+    let e = load(sat, &["scene.method=\"dem\""]).unwrap_err();
     assert!(e.names_key("scene.method") && e.to_string().contains("implies \"dem_lbm\""), "{e}");
     // Named as the blocks imply: fine.
     assert_eq!(load(VALID, &["scene.method=\"dem\""]).unwrap().method(), Method::DemDry);
-    assert_eq!(load(&sat, &["scene.method=dem_lbm"]).unwrap().method(), Method::DemLbm);
+    assert_eq!(load(sat, &["scene.method=dem_lbm"]).unwrap().method(), Method::DemLbm);
     let e = load(VALID, &["scene.method=\"sph\""]).unwrap_err();
     assert!(e.names_key("scene.method") && e.to_string().contains("unknown variant"), "{e}");
 }
