@@ -5,9 +5,13 @@
 //! separating fast enough that the normal force clamps to zero).
 
 use dem_proc::lanes::{self, Lanes, LANES};
-use dem_proc::law::{evaluate, evaluate_lanes, ContactInput, ContactLanes, ContactLaw, OutputLanes};
+use dem_proc::law::{evaluate, evaluate_lanes, ContactLanes, ContactLaw, OutputLanes};
 use dem_proc::rng::SplitMix64;
 use runtime::isa::Isa;
+
+#[path = "support/contacts.rs"]
+mod contacts;
+use contacts::{batch as contact_batch, law};
 
 /// The law built for AVX2, as the pair kernel's AVX2 build inlines it.
 #[cfg(target_arch = "x86_64")]
@@ -25,62 +29,6 @@ fn evaluate_lanes_on(isa: Isa, law: &ContactLaw, c: &ContactLanes, dt: f64, spri
     }
 }
 
-fn law(rolling_friction: f64, tangential_stiffness: f64) -> ContactLaw {
-    ContactLaw {
-        normal_stiffness: 2000.0,
-        tangential_stiffness,
-        damping_ratio: dem_proc::law::damping_ratio_for(0.88),
-        friction: 0.577,
-        rolling_friction,
-    }
-}
-
-/// A contact of the lab column's scale (2.5 mm grains, overlaps up to 1e-5 m,
-/// speeds up to 0.5 m/s), with each regime switched on by `kind`.
-fn contact(rng: &mut SplitMix64, kind: u64) -> (ContactInput, [f64; 3]) {
-    let mut v3 = |s: f64| [s * rng.symmetric(), s * rng.symmetric(), s * rng.symmetric()];
-    let d = v3(1.0);
-    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-    let n = [d[0] / len, d[1] / len, d[2] / len];
-    let (vel_i, vel_j) = (v3(0.5), v3(0.5));
-    // Kinds 0–1: no rolling (equal spins); 2: no spring yet; 3: a spring
-    // long enough to slide; 4: separating faster than the spring pushes.
-    let omega_i = v3(200.0);
-    let omega_j = if kind <= 1 { omega_i } else { v3(200.0) };
-    let spring = match kind {
-        2 => [0.0; 3],
-        3 => v3(1e-3),
-        _ => v3(1e-6),
-    };
-    let (vel_i, vel_j) = if kind == 4 { ([-n[0], -n[1], -n[2]], [n[0], n[1], n[2]]) } else { (vel_i, vel_j) };
-    let mut rng2 = SplitMix64::new(kind);
-    let (ri, rj) = (1.25e-3 * (1.0 + 0.1 * rng2.symmetric()), 1.25e-3 * (1.0 + 0.1 * rng2.symmetric()));
-    let overlap = 1e-5 * rng2.uniform() + 1e-9;
-    let (mi, mj) = (2600.0 * 4.19 * ri * ri * ri, 2600.0 * 4.19 * rj * rj * rj);
-    let input = ContactInput {
-        n,
-        overlap,
-        arm_i: ri - 0.5 * overlap,
-        arm_j: rj - 0.5 * overlap,
-        vel_i,
-        omega_i,
-        vel_j,
-        omega_j,
-        effective_mass: mi * mj / (mi + mj),
-        inv_inertia_sum: 1.0 / (0.4 * mi * ri * ri) + 1.0 / (0.4 * mj * rj * rj),
-        rolling_diameter: 4.0 * ri * rj / (ri + rj),
-    };
-    (input, spring)
-}
-
-fn gather(inputs: &[ContactInput], f: impl Fn(&ContactInput) -> f64) -> Lanes {
-    Lanes(std::array::from_fn(|l| f(&inputs[l])))
-}
-
-fn gather3(inputs: &[ContactInput], f: impl Fn(&ContactInput) -> [f64; 3]) -> [Lanes; 3] {
-    std::array::from_fn(|a| Lanes(std::array::from_fn(|l| f(&inputs[l])[a])))
-}
-
 #[test]
 fn lanes_round_exactly_as_the_scalar_law() {
     let mut rng = SplitMix64::new(11);
@@ -91,25 +39,7 @@ fn lanes_round_exactly_as_the_scalar_law() {
         .flat_map(|isa| [law(0.05, 571.4), law(0.0, 571.4), law(0.05, 0.0)].map(|law| (isa, law)))
     {
         for batch in 0..400u64 {
-            let (inputs, springs): (Vec<_>, Vec<_>) =
-                (0..LANES as u64).map(|l| contact(&mut rng, (batch + l) % 5)).unzip();
-            let lanes_in = ContactLanes {
-                n: gather3(&inputs, |c| c.n),
-                overlap: gather(&inputs, |c| c.overlap),
-                arm_i: gather(&inputs, |c| c.arm_i),
-                arm_j: gather(&inputs, |c| c.arm_j),
-                vel_i: gather3(&inputs, |c| c.vel_i),
-                omega_i: gather3(&inputs, |c| c.omega_i),
-                vel_j: gather3(&inputs, |c| c.vel_j),
-                omega_j: gather3(&inputs, |c| c.omega_j),
-                effective_mass: gather(&inputs, |c| c.effective_mass),
-                inv_inertia_sum: gather(&inputs, |c| c.inv_inertia_sum),
-                rolling_diameter: gather(&inputs, |c| c.rolling_diameter),
-            };
-            let mut spring_lanes = [Lanes::splat(0.0); 3];
-            for (l, s) in springs.iter().enumerate() {
-                lanes::set_lane(&mut spring_lanes, l, *s);
-            }
+            let contacts::Batch { inputs, springs, lanes: lanes_in, mut spring_lanes } = contact_batch(&mut rng, batch);
             let out = evaluate_lanes_on(isa, &law, &lanes_in, dt, &mut spring_lanes);
             for l in 0..LANES {
                 let mut spring = springs[l];
