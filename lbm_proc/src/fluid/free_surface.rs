@@ -350,6 +350,10 @@ impl<T: Real> Fluid<T> {
     /// interface mass; the interface list is the step's before. Post: flags,
     /// masses, fills and the interface list consistent again, the liquid
     /// mass conserved up to the pending excess (step 8).
+    // Kept out of line: inlined into `Fluid::finish_step` (once its stages
+    // became small functions) it cost the bulk stream–collide 20 % through
+    // the step's code layout (docs/BENCHMARKS.md, session 21).
+    #[inline(never)]
     pub(super) fn update_surface(&mut self) {
         let mut l = std::mem::take(&mut self.scratch.lists);
         self.mark_conversions(&mut l);
