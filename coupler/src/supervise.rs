@@ -34,16 +34,28 @@ fn sibling_binary(name: &str) -> Result<PathBuf, String> {
     }
 }
 
+/// What the terminal shows while the processes run: a progress bar on a
+/// terminal; plain lines otherwise (`--quiet`, or stderr going to a file or
+/// a pipe, where a bar would draw nothing and, worse, swallow the
+/// processes' own messages with it).
 struct Bar {
     bar: Option<ProgressBar>,
     phase: String,
     /// (simulated time, wall time) of the previous progress event.
     last: (f64, f64),
+    /// Plain lines: wall time of the last progress line printed.
+    last_line: Option<f64>,
 }
+
+/// Plain progress lines on a terminal under `--quiet`, at most this often (s).
+const PLAIN_PROGRESS_EVERY: f64 = 0.5;
+/// Plain progress lines into a file or pipe (a log), at most this often (s).
+const LOGGED_PROGRESS_EVERY: f64 = 10.0;
 
 impl Bar {
     fn new(quiet: bool) -> Self {
-        let bar = (!quiet).then(|| {
+        use std::io::IsTerminal as _;
+        let bar = (!quiet && std::io::stderr().is_terminal()).then(|| {
             let b = ProgressBar::new(1000);
             b.set_style(
                 ProgressStyle::with_template("{prefix:>11} [{bar:30}] {msg} | elapsed {elapsed_precise}, ETA {eta}")
@@ -53,13 +65,14 @@ impl Bar {
             b.enable_steady_tick(Duration::from_millis(500));
             b
         });
-        Self { bar, phase: String::new(), last: (0.0, 0.0) }
+        Self { bar, phase: String::new(), last: (0.0, 0.0), last_line: None }
     }
 
+    /// A process's line, or one of the coupler's own: always printed.
     fn println(&self, line: &str) {
         match &self.bar {
-            Some(b) => b.println(line),
-            None => eprintln!("{line}"),
+            Some(b) if !b.is_hidden() => b.println(line),
+            _ => eprintln!("{line}"),
         }
     }
 
@@ -68,20 +81,29 @@ impl Bar {
         let t = ev["t"].as_f64().unwrap_or(0.0);
         let t_end = ev["t_end"].as_f64().unwrap_or(1.0).max(1e-12);
         let wall = ev["wall"].as_f64().unwrap_or(0.0);
-        let (t0, w0) = if phase == self.phase { self.last } else { (t, wall) };
+        let new_phase = phase != self.phase;
+        let (t0, w0) = if new_phase { (t, wall) } else { self.last };
         self.last = (t, wall);
         let rate = if wall > w0 { (t - t0) / (wall - w0) } else { 0.0 };
         let msg = format!("t = {t:.4} / {t_end:.3} s, {:.1} ms simulated per wall second", rate * 1e3);
         match &self.bar {
             Some(b) => {
-                if phase != self.phase {
+                if new_phase {
                     b.reset();
                     b.set_prefix(phase.clone());
                 }
                 b.set_position(((t / t_end) * 1000.0).clamp(0.0, 1000.0) as u64);
                 b.set_message(msg);
             }
-            None => eprintln!("{phase}: {msg}, {wall:.1} s wall"),
+            None => {
+                use std::io::IsTerminal as _;
+                let every = if std::io::stderr().is_terminal() { PLAIN_PROGRESS_EVERY } else { LOGGED_PROGRESS_EVERY };
+                let due = new_phase || t >= t_end || self.last_line.is_none_or(|w| wall - w >= every);
+                if due {
+                    eprintln!("{phase}: {msg}, {wall:.1} s wall");
+                    self.last_line = Some(wall);
+                }
+            }
         }
         self.phase = phase;
     }
@@ -134,7 +156,8 @@ fn solvers_for(method: Method) -> &'static [(&'static str, &'static str)] {
 /// What a child's watcher task reports.
 enum Event {
     Progress(serde_json::Value),
-    Line(String),
+    /// A line process `k` wrote to stderr.
+    Line(usize, String),
     Exited(usize, std::io::Result<std::process::ExitStatus>),
 }
 
@@ -311,7 +334,7 @@ async fn watch_child(mut child: tokio::process::Child, k: usize, tx: tokio::sync
                 None => out_open = false,
             },
             line = stderr.next_line(), if err_open => match line {
-                Some(l) => { let _ = tx.send(Event::Line(l)); }
+                Some(l) => { let _ = tx.send(Event::Line(k, l)); }
                 None => err_open = false,
             },
             st = child.wait() => break st,
@@ -321,7 +344,7 @@ async fn watch_child(mut child: tokio::process::Child, k: usize, tx: tokio::sync
     while err_open {
         match tokio::time::timeout(Duration::from_millis(200), stderr.next_line()).await {
             Ok(Some(l)) => {
-                let _ = tx.send(Event::Line(l));
+                let _ = tx.send(Event::Line(k, l));
             }
             _ => err_open = false,
         }
@@ -332,10 +355,23 @@ async fn watch_child(mut child: tokio::process::Child, k: usize, tx: tokio::sync
 /// How the processes ended.
 struct Ended {
     statuses: Vec<Option<std::process::ExitStatus>>,
+    /// Each process's last error line (`<name>: error: …`, or any line of
+    /// its naming an error), repeated when the coupler reports the failure.
+    last_error: Vec<Option<String>>,
     /// The first process that ended abnormally, and how.
     first_failure: Option<(usize, std::process::ExitStatus)>,
     /// SIGINT/SIGTERM received.
     interrupts: u32,
+}
+
+impl Ended {
+    /// Keeps `line` of process `k` (`name`) when it reports an error.
+    fn note_line(&mut self, k: usize, name: &str, line: String) {
+        let own = line.strip_prefix(name).and_then(|rest| rest.strip_prefix(": "));
+        if let Some(text) = own.filter(|t| t.contains("error") || t.contains("unstable") || t.contains("fix:")) {
+            self.last_error[k] = Some(text.strip_prefix("error: ").unwrap_or(text).to_string());
+        }
+    }
 }
 
 /// Until every process has exited: shows progress and lines, forwards
@@ -356,14 +392,22 @@ async fn supervise(
         }
     };
     let mut bar = Bar::new(quiet);
-    let mut ended = Ended { statuses: vec![None; names.len()], first_failure: None, interrupts: 0 };
+    let mut ended = Ended {
+        statuses: vec![None; names.len()],
+        last_error: vec![None; names.len()],
+        first_failure: None,
+        interrupts: 0,
+    };
     let mut kill_at: Option<tokio::time::Instant> = None;
     let far = tokio::time::Instant::now() + Duration::from_secs(86400 * 365);
     loop {
         tokio::select! {
             ev = rx.recv() => match ev {
                 Some(Event::Progress(ev)) => bar.progress(&ev),
-                Some(Event::Line(l)) => bar.println(&l),
+                Some(Event::Line(k, l)) => {
+                    bar.println(&l);
+                    ended.note_line(k, names[k], l);
+                }
                 Some(Event::Exited(k, st)) => {
                     let st = match st {
                         Ok(s) => s,
@@ -443,8 +487,13 @@ fn conclude(
             return ExitCode::from(EXIT_INTERRUPTED as u8);
         }
         let others = if coupled { "; the other process was stopped" } else { "" };
+        let why = match &ended.last_error[k] {
+            Some(e) => format!(": {e}"),
+            None if st.code().is_some() => "; see its message above".to_string(),
+            None => String::new(),
+        };
         eprintln!(
-            "coupler: {} failed ({}){others}; see its message above. What was recorded so far is in {} (readable by streaming MCAP readers)",
+            "coupler: {} failed ({}){why}{others}. What was recorded so far is in {} (readable by streaming MCAP readers)",
             names[k],
             describe(&st),
             recording.display()

@@ -132,3 +132,30 @@ fn wrong_run_id_is_refused_with_a_message() {
     assert_eq!(output.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&output.stderr).contains("coupler run"));
 }
+
+/// A process that stops on its own (the LBM's watchdog) under `coupler`
+/// with stderr going to a pipe, as in a batch job's log: its own message
+/// passes through (no progress bar to swallow it), and the coupler's last
+/// line repeats the cause and its fix. Exit status 1, the DEM stopped.
+#[test]
+fn a_blow_up_under_the_coupler_is_reported_with_its_fix_in_a_log() {
+    let out = scratch_dir("coupled_lbm_blow_up");
+    let output = Command::new(binary("coupler"))
+        .current_dir(repo_root())
+        // Mach 1e-4: the first frame's flow around the falling sphere trips the watchdog.
+        .args(["run", SCENE, "--set", "lbm.mach_limit=0.0001", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("lbm_proc: error: the flow became unstable"), "the process's own line: {stderr}");
+    let last = stderr.lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("coupler: lbm_proc failed (exit status 1): the flow became unstable")
+            && last.contains("lower the time step")
+            && last.contains("the other process was stopped"),
+        "the coupler's last line: {last}"
+    );
+    assert!(!process_running("dem_proc", &out) && !process_running("lbm_proc", &out));
+}
