@@ -35,7 +35,7 @@
 use rayon::prelude::*;
 use runtime::isa::Isa;
 
-use crate::memory::{huge_copy, huge_vec};
+use crate::memory::{huge_blocks, huge_copy, huge_vec};
 use schemas::scene::ForcingGain;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -321,7 +321,7 @@ impl<T: Real> Fluid<T> {
             dims,
             faces,
             flags: huge_vec(ncells, |_| flags::FLUID),
-            populations: huge_vec(Q * ncells, |k| T::from_f64(rest[k / ncells] - W[k / ncells])),
+            populations: huge_blocks(&std::array::from_fn::<T, Q, _>(|i| T::from_f64(rest[i] - W[i])), ncells),
             mass: huge_vec(ncells, |_| 0.0),
             pending_excess: 0.0,
             reference_mass: None,

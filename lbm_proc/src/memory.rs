@@ -37,19 +37,36 @@ fn advise(ptr: *const u8, len: usize) {
     let _ = ptr;
 }
 
-/// A vector of `len` elements `value(k)`, on huge pages where the OS gives them.
-pub fn huge_vec<T>(len: usize, value: impl Fn(usize) -> T) -> Vec<T> {
+/// A vector of `len` elements `value(k)`, on huge pages where the OS gives
+/// them. Filled on every thread of the pool: first touching ~3 GB of pages
+/// (the lab column's lattice) is most of the lattice's set-up.
+pub fn huge_vec<T: Send>(len: usize, value: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
+    use rayon::prelude::*;
     let mut v = Vec::with_capacity(len);
     advise(v.as_ptr() as *const u8, len * std::mem::size_of::<T>());
-    v.extend((0..len).map(value));
+    v.par_extend((0..len).into_par_iter().with_min_len(1 << 16).map(value));
     v
 }
 
-/// A copy of `src` on huge pages where the OS gives them.
-pub fn huge_copy<T: Copy>(src: &[T]) -> Vec<T> {
+/// `values.len()` blocks of `block` elements, block i all `values[i]`, on
+/// huge pages where the OS gives them (the populations: one block per
+/// lattice direction), filled on every thread of the pool.
+pub fn huge_blocks<T: Copy + Default + Send + Sync>(values: &[T], block: usize) -> Vec<T> {
+    use rayon::prelude::*;
+    // Filled per block: an index-to-block division per element took most
+    // of the lattice's set-up.
+    let mut v = huge_vec(values.len() * block, |_| T::default());
+    v.par_chunks_mut(block.max(1)).zip(values).for_each(|(b, &x)| b.fill(x));
+    v
+}
+
+/// A copy of `src` on huge pages where the OS gives them, made on every
+/// thread of the pool.
+pub fn huge_copy<T: Copy + Send + Sync>(src: &[T]) -> Vec<T> {
+    use rayon::prelude::*;
     let mut v = Vec::with_capacity(src.len());
     advise(v.as_ptr() as *const u8, std::mem::size_of_val(src));
-    v.extend_from_slice(src);
+    v.par_extend(src.par_iter().with_min_len(1 << 16).copied());
     v
 }
 
@@ -65,5 +82,8 @@ mod tests {
         assert!(v.iter().enumerate().all(|(k, &x)| x == k as u32));
         assert_eq!(huge_copy(&v), v);
         assert_eq!(huge_copy(&[1.5f32, 2.5]), vec![1.5, 2.5]);
+        let b = huge_blocks(&[1.0f32, 2.0, 3.0], n);
+        assert_eq!(b.len(), 3 * n);
+        assert!(b.iter().enumerate().all(|(k, &x)| x == (k / n + 1) as f32));
     }
 }
