@@ -155,7 +155,8 @@ fn solvers_for(method: Method) -> &'static [(&'static str, &'static str)] {
 
 /// What a child's watcher task reports.
 enum Event {
-    Progress(serde_json::Value),
+    /// A progress event of process `k`.
+    Progress(usize, serde_json::Value),
     /// A line process `k` wrote to stderr.
     Line(usize, String),
     Exited(usize, std::io::Result<std::process::ExitStatus>),
@@ -164,8 +165,16 @@ enum Event {
 /// How long the other process of a coupled run may take to finish after the
 /// first one ended normally (it records its last frame and state).
 const PEER_FINISH_GRACE: Duration = Duration::from_secs(300);
-/// How long the other process may take to stop after the first one failed.
+/// How long the other process may take to stop after the first one failed,
+/// once it steps (it records its last frame and state).
 const PEER_STOP_GRACE: Duration = Duration::from_secs(10);
+/// The same for a process still setting up (building its lattice,
+/// depositing its packing, waiting for its peer): it has recorded nothing
+/// yet and may not look at its stop flag until its set-up ends, seconds
+/// later, so it gets a moment and is then killed.
+const SETUP_STOP_GRACE: Duration = Duration::from_millis(500);
+/// Progress phases of the solvers' run loops (`runtime::driver::drive`).
+const LOOP_PHASES: [&str; 2] = ["collapse", "flow"];
 
 /// A run id for iceoryx2 service names: unique on this machine, short, [A-Za-z0-9_-].
 fn new_run_id(scene: &Scene) -> String {
@@ -282,7 +291,7 @@ struct Launch<'a> {
 }
 
 /// Starts one process per binary, each watched by a task that forwards its
-/// progress (the first process's only), its stderr lines and its exit.
+/// progress, its stderr lines and its exit.
 /// Returns their pids; if one cannot start, those started are killed.
 fn spawn_solvers(
     bins: &[PathBuf],
@@ -316,10 +325,9 @@ fn spawn_solvers(
     Ok(pids)
 }
 
-/// Forwards process `k`'s progress events (when it leads, `k == 0`) and
-/// stderr lines to the supervisor, then its exit.
+/// Forwards process `k`'s progress events and stderr lines to the
+/// supervisor, then its exit.
 async fn watch_child(mut child: tokio::process::Child, k: usize, tx: tokio::sync::mpsc::UnboundedSender<Event>) {
-    let lead = k == 0;
     let mut stdout = LossyLines::new(child.stdout.take().expect("piped"));
     let mut stderr = LossyLines::new(child.stderr.take().expect("piped"));
     let (mut out_open, mut err_open) = (true, true);
@@ -328,7 +336,7 @@ async fn watch_child(mut child: tokio::process::Child, k: usize, tx: tokio::sync
             line = stdout.next_line(), if out_open => match line {
                 Some(l) => {
                     if let Ok(ev) = serde_json::from_str::<serde_json::Value>(&l) {
-                        if lead && ev["event"] == "progress" { let _ = tx.send(Event::Progress(ev)); }
+                        if ev["event"] == "progress" { let _ = tx.send(Event::Progress(k, ev)); }
                     }
                 }
                 None => out_open = false,
@@ -355,6 +363,9 @@ async fn watch_child(mut child: tokio::process::Child, k: usize, tx: tokio::sync
 /// How the processes ended.
 struct Ended {
     statuses: Vec<Option<std::process::ExitStatus>>,
+    /// Whether each process has reached its run loop (a progress event of
+    /// one of [`LOOP_PHASES`]).
+    stepping: Vec<bool>,
     /// Each process's last error line (`<name>: error: …`, or any line of
     /// its naming an error), repeated when the coupler reports the failure.
     last_error: Vec<Option<String>>,
@@ -374,9 +385,11 @@ impl Ended {
     }
 }
 
-/// Until every process has exited: shows progress and lines, forwards
-/// signals, and when one process ends lets the others finish (normal end)
-/// or stops them (failure), killing any that outlive its grace. None when
+/// Until every process has exited: shows progress (the first process's
+/// drives the bar) and lines, forwards signals, and when one process ends
+/// lets the others finish (normal end) or stops them (failure: 10 s to
+/// record their last state once stepping, 0.5 s in set-up), killing any
+/// that outlive its grace. None when
 /// the signal handlers cannot be installed.
 async fn supervise(
     mut rx: tokio::sync::mpsc::UnboundedReceiver<Event>,
@@ -394,6 +407,7 @@ async fn supervise(
     let mut bar = Bar::new(quiet);
     let mut ended = Ended {
         statuses: vec![None; names.len()],
+        stepping: vec![false; names.len()],
         last_error: vec![None; names.len()],
         first_failure: None,
         interrupts: 0,
@@ -403,7 +417,12 @@ async fn supervise(
     loop {
         tokio::select! {
             ev = rx.recv() => match ev {
-                Some(Event::Progress(ev)) => bar.progress(&ev),
+                Some(Event::Progress(k, ev)) => {
+                    ended.stepping[k] |= ev["phase"].as_str().is_some_and(|p| LOOP_PHASES.contains(&p));
+                    if k == 0 {
+                        bar.progress(&ev);
+                    }
+                }
                 Some(Event::Line(k, l)) => {
                     bar.println(&l);
                     ended.note_line(k, names[k], l);
@@ -465,7 +484,8 @@ fn process_exited(
     for &j in &running {
         kill_pid(pids[j], libc::SIGINT);
     }
-    Some(tokio::time::Instant::now() + PEER_STOP_GRACE)
+    let grace = if running.iter().any(|&j| ended.stepping[j]) { PEER_STOP_GRACE } else { SETUP_STOP_GRACE };
+    Some(tokio::time::Instant::now() + grace)
 }
 
 /// The exit status and the last words of a run.

@@ -22,7 +22,8 @@
 //! 4. at every `steps_per_frame`-th step: [`Solver::check`] (a blow-up
 //!    ends the run `unstable`), [`Solver::record_frame`], the state at
 //!    every `steps_per_state`-th step, then rest detection;
-//! 5. progress, at most every half second of wall time.
+//! 5. progress, at most every half second of wall time (and once as the
+//!    loop begins).
 //!
 //! After the loop: the peer told the run stops ([`StepExchange::finish`]),
 //! a last frame unless the run failed or the last step was just recorded,
@@ -310,6 +311,9 @@ pub fn drive<'x, S: Solver>(
     let mut last_state = cadence.state_at_start.then(|| solver.steps());
     let mut frames_at_rest = 0;
     let mut has_moved = false;
+    // At once, not after the first half second: a supervisor learns that
+    // the run loop (and its recording) has begun.
+    progress(solver.time(), solver.steps());
     while solver.steps() < cadence.step_limit {
         let step_work = solver.work_per_step();
         match step_once(solver, exchange.as_deref_mut(), rec) {
