@@ -156,6 +156,20 @@ impl Cursor<'_> {
     fn header(&mut self) -> Result<ExchangeHeader, DecodeError> {
         Ok(ExchangeHeader { exchange: self.u64()?, time: self.f64()?, count: self.u32()?, flags: self.u32()? })
     }
+    /// Checks that `count` records of `size` bytes fit in what is left
+    /// before anything is allocated for them (a corrupt count must not
+    /// claim gigabytes).
+    fn records(&self, count: u32, size: usize) -> Result<usize, DecodeError> {
+        let left = self.bytes.len() - self.at;
+        if (count as usize).saturating_mul(size) > left {
+            return Err(format!(
+                "{}: the header announces {count} records of {size} bytes, the message holds {left} bytes",
+                self.what
+            )
+            .into());
+        }
+        Ok(count as usize)
+    }
     fn end(&self) -> Result<(), DecodeError> {
         if self.at != self.bytes.len() {
             return Err(
@@ -182,7 +196,8 @@ pub fn encode_loads(header: &ExchangeHeader, loads: &[HydroLoad], out: &mut Vec<
 pub fn decode_loads(bytes: &[u8]) -> Result<(ExchangeHeader, Vec<HydroLoad>), DecodeError> {
     let mut c = Cursor { bytes, at: 0, what: "received loads" };
     let header = c.header()?;
-    let mut loads = Vec::with_capacity(header.count as usize);
+    // id, force (3), torque (3), liquid mass.
+    let mut loads = Vec::with_capacity(c.records(header.count, 4 + 7 * 8)?);
     for _ in 0..header.count {
         loads.push(HydroLoad { id: c.u32()?, _pad: 0, force: c.vec3()?, torque: c.vec3()?, liquid_mass: c.f64()? });
     }
@@ -207,7 +222,8 @@ pub fn encode_states(header: &ExchangeHeader, states: &[ParticleState], out: &mu
 pub fn decode_states(bytes: &[u8]) -> Result<(ExchangeHeader, Vec<ParticleState>), DecodeError> {
     let mut c = Cursor { bytes, at: 0, what: "received states" };
     let header = c.header()?;
-    let mut states = Vec::with_capacity(header.count as usize);
+    // id, position (3), velocity (3), angular velocity (3), radius.
+    let mut states = Vec::with_capacity(c.records(header.count, 4 + 10 * 8)?);
     for _ in 0..header.count {
         states.push(ParticleState {
             id: c.u32()?,
@@ -266,6 +282,13 @@ mod tests {
         assert_eq!((h.exchange, s.as_slice()), (7, &states[..]));
         // A cut message is an error naming what was cut, not a panic.
         let err = decode_states(&bytes[..bytes.len() - 3]).unwrap_err().to_string();
-        assert!(err.contains("received states: message truncated"), "{err}");
+        assert!(err.contains("received states"), "{err}");
+        // A corrupt count is refused before anything is allocated for it
+        // (found by tests/fuzz_inputs.rs: 4e9 records aborted the process).
+        let mut corrupt = bytes.clone();
+        corrupt[16..20].copy_from_slice(&u32::MAX.to_le_bytes());
+        let err = decode_states(&corrupt).unwrap_err().to_string();
+        assert!(err.contains("announces 4294967295 records of 84 bytes, the message holds 84 bytes"), "{err}");
+        assert!(decode_loads(&corrupt).is_err());
     }
 }
