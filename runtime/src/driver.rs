@@ -285,7 +285,6 @@ where
 /// the module docs for the order), then writes the summary into the
 /// recording and to `summary_path`. Returns the summary, or the failure
 /// the run ended with once the summary is written.
-#[allow(clippy::too_many_arguments)]
 pub fn drive<'x, S: Solver>(
     solver: &mut S,
     mut exchange: Option<&mut (dyn StepExchange<S> + 'x)>,
