@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use runtime::say;
 use schemas::topics::metadata;
 
 pub fn inspect(path: &Path) -> Result<(), String> {
@@ -13,7 +14,7 @@ pub fn inspect(path: &Path) -> Result<(), String> {
         return Err(format!("{} is not an MCAP file (no MCAP magic bytes at its start)", path.display()));
     }
     let summary = mcap::Summary::read(&bytes).ok().flatten();
-    println!("file         {} ({:.1} MB)", path.display(), bytes.len() as f64 / 1e6);
+    say!("file         {} ({:.1} MB)", path.display(), bytes.len() as f64 / 1e6);
     let mut topics: BTreeMap<String, (String, String, u64)> = BTreeMap::new();
     let (mut t0, mut t1) = (u64::MAX, 0u64);
     let mut run_summary = None;
@@ -38,11 +39,18 @@ pub fn inspect(path: &Path) -> Result<(), String> {
             }
         }
         None => {
-            println!("note         no summary section (the writer did not finish): streaming what was written");
+            say!("note         no summary section (the writer did not finish): streaming what was written");
             let stream = mcap::MessageStream::new_with_options(&bytes, mcap::read::Options::IgnoreEndMagic.into())
                 .map_err(|e| format!("{} is not an MCAP file: {e}", path.display()))?;
+            let mut stream_error = None;
             for msg in stream {
-                let Ok(msg) = msg else { break };
+                let msg = match msg {
+                    Ok(m) => m,
+                    Err(e) => {
+                        stream_error = Some(e.to_string());
+                        break;
+                    }
+                };
                 let schema = msg.channel.schema.as_ref().map(|s| s.name.clone()).unwrap_or_else(|| "-".into());
                 let e = topics.entry(msg.channel.topic.clone()).or_insert((
                     schema,
@@ -53,19 +61,29 @@ pub fn inspect(path: &Path) -> Result<(), String> {
                 t0 = t0.min(msg.log_time);
                 t1 = t1.max(msg.log_time);
             }
+            if let Some((start, claimed_end)) = unfinished_record(&bytes) {
+                let missing = claimed_end - bytes.len();
+                say!(
+                    "cut          the file ends inside a record (bytes {start}..{claimed_end}): its last {missing} bytes ({:.1} % of that record) are missing; the messages listed below are those read before the cut",
+                    100.0 * missing as f64 / (claimed_end - start) as f64
+                );
+            }
+            if let Some(e) = stream_error {
+                say!("damaged      reading stopped at: {e}; the messages listed below were read before it");
+            }
         }
     }
     if t0 <= t1 {
-        println!("time span    {:.4} s .. {:.4} s (simulated)", t0 as f64 * 1e-9, t1 as f64 * 1e-9);
+        say!("time span    {:.4} s .. {:.4} s (simulated)", t0 as f64 * 1e-9, t1 as f64 * 1e-9);
     }
-    println!("{:<18} {:>8}  {:<24} encoding", "topic", "messages", "schema");
+    say!("{:<18} {:>8}  {:<24} encoding", "topic", "messages", "schema");
     for (topic, (schema, enc, count)) in &topics {
-        println!("{topic:<18} {count:>8}  {schema:<24} {enc}");
+        say!("{topic:<18} {count:>8}  {schema:<24} {enc}");
     }
     match run_summary {
         Some(json) => {
             let v: serde_json::Value = serde_json::from_str(&json).map_err(|e| format!("summary is not JSON: {e}"))?;
-            println!("summary");
+            say!("summary");
             for key in [
                 "scene",
                 "method",
@@ -78,14 +96,14 @@ pub fn inspect(path: &Path) -> Result<(), String> {
                 "porosity_initial",
             ] {
                 if let Some(x) = v.get(key) {
-                    println!("  {key:<16} {x}");
+                    say!("  {key:<16} {x}");
                 }
             }
             if let Some(x) = v.get("throughput") {
-                println!("  {:<16} {x}", "throughput");
+                say!("  {:<16} {x}", "throughput");
             }
             if let Some(f) = v.get("front").and_then(|f| f.as_array()) {
-                println!(
+                say!(
                     "  {:<16} {} samples, last {}",
                     "front",
                     f.len(),
@@ -93,7 +111,24 @@ pub fn inspect(path: &Path) -> Result<(), String> {
                 );
             }
         }
-        None => println!("summary      none recorded (run interrupted before the end or still running)"),
+        None => say!("summary      none recorded (run interrupted before the end or still running)"),
     }
     Ok(())
+}
+
+/// The top-level record the file ends inside, if any, as (its start, the
+/// end its length field claims): each record is an opcode byte, a u64
+/// little-endian length and that many bytes (MCAP specification,
+/// "Records"). A writer killed mid-chunk, or a full disk, leaves one.
+fn unfinished_record(bytes: &[u8]) -> Option<(usize, usize)> {
+    let mut at = mcap::MAGIC.len();
+    while let Some(len) = bytes.get(at + 1..at + 9).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes"))) {
+        let end = (at + 9).saturating_add(usize::try_from(len).unwrap_or(usize::MAX));
+        if end > bytes.len() {
+            return Some((at, end));
+        }
+        at = end;
+    }
+    // A record header itself cut short.
+    (at < bytes.len()).then_some((at, at + 9))
 }
