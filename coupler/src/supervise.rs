@@ -168,13 +168,11 @@ const PEER_FINISH_GRACE: Duration = Duration::from_secs(300);
 /// How long the other process may take to stop after the first one failed,
 /// once it steps (it records its last frame and state).
 const PEER_STOP_GRACE: Duration = Duration::from_secs(10);
-/// The same for a process still setting up (building its lattice,
-/// depositing its packing, waiting for its peer): it has recorded nothing
-/// yet and may not look at its stop flag until its set-up ends, seconds
-/// later, so it gets a moment and is then killed.
+/// The same for a process still setting up (it has reported no progress:
+/// building its lattice): it has recorded nothing yet and may not look at
+/// its stop flag until its set-up ends, seconds later, so it gets a moment
+/// and is then killed.
 const SETUP_STOP_GRACE: Duration = Duration::from_millis(500);
-/// Progress phases of the solvers' run loops (`runtime::driver::drive`).
-const LOOP_PHASES: [&str; 2] = ["collapse", "flow"];
 
 /// A run id for iceoryx2 service names: unique on this machine, short, [A-Za-z0-9_-].
 fn new_run_id(scene: &Scene) -> String {
@@ -363,9 +361,15 @@ async fn watch_child(mut child: tokio::process::Child, k: usize, tx: tokio::sync
 /// How the processes ended.
 struct Ended {
     statuses: Vec<Option<std::process::ExitStatus>>,
-    /// Whether each process has reached its run loop (a progress event of
-    /// one of [`LOOP_PHASES`]).
-    stepping: Vec<bool>,
+    /// Whether each process has reported progress: it is in a phase that
+    /// polls its stop flag (deposition, gravity phase, the run loop, which
+    /// reports as it begins). One that has not is still setting up.
+    reporting: Vec<bool>,
+    /// When each running process is killed if it has not exited by then.
+    deadlines: Vec<Option<tokio::time::Instant>>,
+    /// Killed by the coupler during its set-up after a Ctrl-C: its end is
+    /// the interruption asked for, not a failure.
+    stopped_in_setup: Vec<bool>,
     /// Each process's last error line (`<name>: error: …`, or any line of
     /// its naming an error), repeated when the coupler reports the failure.
     last_error: Vec<Option<String>>,
@@ -376,6 +380,17 @@ struct Ended {
 }
 
 impl Ended {
+    /// Process `j` must be gone by `deadline` (an earlier one holds).
+    fn kill_by(&mut self, j: usize, deadline: tokio::time::Instant) {
+        let d = &mut self.deadlines[j];
+        *d = Some(d.map_or(deadline, |t| t.min(deadline)));
+    }
+
+    /// The first deadline of a process still running.
+    fn next_deadline(&self) -> Option<tokio::time::Instant> {
+        (0..self.statuses.len()).filter(|&j| self.statuses[j].is_none()).filter_map(|j| self.deadlines[j]).min()
+    }
+
     /// Keeps `line` of process `k` (`name`) when it reports an error.
     fn note_line(&mut self, k: usize, name: &str, line: String) {
         let own = line.strip_prefix(name).and_then(|rest| rest.strip_prefix(": "));
@@ -388,8 +403,8 @@ impl Ended {
 /// Until every process has exited: shows progress (the first process's
 /// drives the bar) and lines, forwards signals, and when one process ends
 /// lets the others finish (normal end) or stops them (failure: 10 s to
-/// record their last state once stepping, 0.5 s in set-up), killing any
-/// that outlive its grace. None when
+/// record their last state once they report progress, 0.5 s in set-up),
+/// killing any that outlive their grace. None when
 /// the signal handlers cannot be installed.
 async fn supervise(
     mut rx: tokio::sync::mpsc::UnboundedReceiver<Event>,
@@ -407,18 +422,19 @@ async fn supervise(
     let mut bar = Bar::new(quiet);
     let mut ended = Ended {
         statuses: vec![None; names.len()],
-        stepping: vec![false; names.len()],
+        reporting: vec![false; names.len()],
+        deadlines: vec![None; names.len()],
+        stopped_in_setup: vec![false; names.len()],
         last_error: vec![None; names.len()],
         first_failure: None,
         interrupts: 0,
     };
-    let mut kill_at: Option<tokio::time::Instant> = None;
     let far = tokio::time::Instant::now() + Duration::from_secs(86400 * 365);
     loop {
         tokio::select! {
             ev = rx.recv() => match ev {
                 Some(Event::Progress(k, ev)) => {
-                    ended.stepping[k] |= ev["phase"].as_str().is_some_and(|p| LOOP_PHASES.contains(&p));
+                    ended.reporting[k] = true;
                     if k == 0 {
                         bar.progress(&ev);
                     }
@@ -435,20 +451,23 @@ async fn supervise(
                             std::os::unix::process::ExitStatusExt::from_raw(1 << 8)
                         }
                     };
-                    if let Some(deadline) = process_exited(&mut ended, k, st, pids, names, &bar) {
-                        kill_at = Some(match kill_at { Some(t) if deadline > t => t, _ => deadline });
-                    }
+                    process_exited(&mut ended, k, st, pids, names, &bar);
                 }
                 None => break,
             },
-            _ = sigint.recv() => { ended.interrupts += 1; forward(pids, &ended.statuses, names, ended.interrupts, &bar); }
-            _ = sigterm.recv() => { ended.interrupts += 1; forward(pids, &ended.statuses, names, ended.interrupts, &bar); }
-            _ = tokio::time::sleep_until(kill_at.unwrap_or(far)), if kill_at.is_some() => {
-                for j in (0..names.len()).filter(|&j| ended.statuses[j].is_none()) {
-                    bar.println(&format!("coupler: {} did not stop in time; killing it", names[j]));
-                    kill_pid(pids[j], libc::SIGKILL);
+            _ = sigint.recv() => interrupted(&mut ended, pids, names, &bar),
+            _ = sigterm.recv() => interrupted(&mut ended, pids, names, &bar),
+            _ = tokio::time::sleep_until(ended.next_deadline().unwrap_or(far)), if ended.next_deadline().is_some() => {
+                let now = tokio::time::Instant::now();
+                for j in 0..names.len() {
+                    if ended.statuses[j].is_none() && ended.deadlines[j].is_some_and(|d| d <= now) {
+                        if !ended.stopped_in_setup[j] {
+                            bar.println(&format!("coupler: {} did not stop in time; killing it", names[j]));
+                        }
+                        kill_pid(pids[j], libc::SIGKILL);
+                        ended.deadlines[j] = None;
+                    }
                 }
-                kill_at = None;
             }
         }
     }
@@ -456,9 +475,10 @@ async fn supervise(
     Some(ended)
 }
 
-/// Process `k` exited with `st`: notes it, and with others still running
-/// returns the deadline by which they must be gone (a normal end gives
-/// them time to finish; a failure stops them at once).
+/// Process `k` exited with `st`: notes it, and gives the others still
+/// running their deadline: after a normal end time to finish; after a
+/// failure a SIGINT and 10 s to record their last state if they report
+/// progress, 0.5 s if they are still setting up.
 fn process_exited(
     ended: &mut Ended,
     k: usize,
@@ -466,26 +486,47 @@ fn process_exited(
     pids: &[Option<u32>],
     names: &[&str],
     bar: &Bar,
-) -> Option<tokio::time::Instant> {
+) {
     ended.statuses[k] = Some(st);
     let running: Vec<usize> = (0..names.len()).filter(|&j| ended.statuses[j].is_none()).collect();
-    let normal = st.success() || (ended.interrupts > 0 && st.code() == Some(EXIT_INTERRUPTED));
+    let asked = ended.interrupts > 0 && (st.code() == Some(EXIT_INTERRUPTED) || ended.stopped_in_setup[k]);
+    let normal = st.success() || asked;
     if !normal && ended.first_failure.is_none() {
         ended.first_failure = Some((k, st));
     }
-    if running.is_empty() {
-        return None;
-    }
+    let now = tokio::time::Instant::now();
     if normal {
-        return Some(tokio::time::Instant::now() + PEER_FINISH_GRACE);
+        for &j in &running {
+            ended.kill_by(j, now + PEER_FINISH_GRACE);
+        }
+        return;
+    }
+    if running.is_empty() {
+        return;
     }
     let others: Vec<&str> = running.iter().map(|&j| names[j]).collect();
     bar.println(&format!("coupler: {} ended ({}); stopping {}", names[k], describe(&st), others.join(", ")));
     for &j in &running {
         kill_pid(pids[j], libc::SIGINT);
+        ended.kill_by(j, now + if ended.reporting[j] { PEER_STOP_GRACE } else { SETUP_STOP_GRACE });
     }
-    let grace = if running.iter().any(|&j| ended.stepping[j]) { PEER_STOP_GRACE } else { SETUP_STOP_GRACE };
-    Some(tokio::time::Instant::now() + grace)
+}
+
+/// Ctrl-C or SIGTERM: the first is forwarded as SIGINT, and a process still
+/// setting up (no progress yet: it does not poll its stop flag there, and
+/// has recorded nothing) is killed after 0.5 s; a second kills every process.
+fn interrupted(ended: &mut Ended, pids: &[Option<u32>], names: &[&str], bar: &Bar) {
+    ended.interrupts += 1;
+    forward(pids, &ended.statuses, names, ended.interrupts, bar);
+    if ended.interrupts == 1 {
+        let now = tokio::time::Instant::now();
+        let setting_up: Vec<usize> =
+            (0..names.len()).filter(|&j| ended.statuses[j].is_none() && !ended.reporting[j]).collect();
+        for j in setting_up {
+            ended.stopped_in_setup[j] = true;
+            ended.kill_by(j, now + SETUP_STOP_GRACE);
+        }
+    }
 }
 
 /// The exit status and the last words of a run.
