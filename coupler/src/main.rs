@@ -31,8 +31,7 @@ enum Command {
     /// Validate a scene, start the solver processes it needs, and record the run.
     Run {
         /// Scene file (TOML). Default: the dry H0 = 0.06 m column of Ceccato et al. 2020.
-        #[arg(default_value = DEFAULT_SCENE)]
-        scene: PathBuf,
+        scene: Option<PathBuf>,
         /// Output directory (default: `runs/<scene name>`).
         #[arg(long)]
         out: Option<PathBuf>,
@@ -48,6 +47,13 @@ enum Command {
         /// Plain progress lines instead of a progress bar.
         #[arg(long)]
         quiet: bool,
+        /// Continue the run in DIR (killed, interrupted or failed) from the
+        /// last checkpoint all its processes wrote (`output.checkpoint_interval`),
+        /// under its `DIR/scene.toml`; `--set` may change only `output.*`
+        /// (run longer, record differently). The recording is continued:
+        /// `DIR/run.mcap` ends as the uninterrupted run's would.
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["scene", "out", "method"])]
+        resume: Option<PathBuf>,
     },
     /// Print what a run of the scene would be, without running it.
     Check {
@@ -91,12 +97,23 @@ fn load(scene: &std::path::Path, set: &[String]) -> Result<Scene, ExitCode> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
-        Command::Run { scene, out, set, method, threads, quiet } => {
+        Command::Run { scene, out, set, method, threads, quiet, resume } => {
+            let scene = match &resume {
+                Some(dir) => dir.join("scene.toml"),
+                None => scene.unwrap_or_else(|| PathBuf::from(DEFAULT_SCENE)),
+            };
+            if resume.is_some() && !scene.exists() {
+                eprintln!(
+                    "coupler: {} does not exist: --resume takes the output directory of a run started by `coupler run`",
+                    scene.display()
+                );
+                return ExitCode::FAILURE;
+            }
             let loaded = match load(&scene, &overrides(method, set)) {
                 Ok(s) => s,
                 Err(code) => return code,
             };
-            let out = out.unwrap_or_else(|| PathBuf::from("runs").join(&loaded.spec.scene.name));
+            let out = resume.clone().or(out).unwrap_or_else(|| PathBuf::from("runs").join(&loaded.spec.scene.name));
             let runtime = match tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build() {
                 Ok(r) => r,
                 Err(e) => {
@@ -104,7 +121,7 @@ fn main() -> ExitCode {
                     return ExitCode::FAILURE;
                 }
             };
-            runtime.block_on(supervise::run(loaded, out, threads, quiet))
+            runtime.block_on(supervise::run(loaded, out, threads, quiet, resume.is_some()))
         }
         Command::Check { scene, set, method } => match load(&scene, &overrides(method, set)) {
             Ok(s) => {

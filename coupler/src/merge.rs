@@ -23,18 +23,42 @@ pub struct Merged {
 
 type Key = (String, String, Vec<u8>, String, String, BTreeMap<String, String>);
 
+/// A recording to merge.
+pub struct Source<'a> {
+    pub path: &'a Path,
+    /// Keep only what was recorded up to this checkpoint (log time, ns): an
+    /// earlier recording of a resumed run. Messages at the checkpoint's own
+    /// time are kept but for the received exchange messages, which the run
+    /// receives after its checkpoint (and the resumed run records again).
+    pub until: Option<u64>,
+}
+
+/// Whether a message of `topic` at `log_time` was recorded before the checkpoint at `until`.
+fn before_checkpoint(topic: &str, log_time: u64, until: Option<u64>) -> bool {
+    match until {
+        None => true,
+        Some(t) => {
+            log_time < t
+                || (log_time == t
+                    && topic != schemas::topics::DEM_RECEIVED_LOADS
+                    && topic != schemas::topics::LBM_RECEIVED_STATES)
+        }
+    }
+}
+
 /// Merges `inputs` (missing files are skipped) into `output`.
 pub fn merge_recordings(
-    inputs: &[&Path],
+    inputs: &[Source<'_>],
     output: &Path,
     scene_toml: &str,
     summary_json: Option<&str>,
 ) -> Result<Merged, String> {
     let mut files = Vec::new();
-    for path in inputs {
+    for source in inputs {
+        let path = source.path;
         if path.exists() {
             let bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-            files.push((path.display().to_string(), bytes));
+            files.push((path.display().to_string(), bytes, source.until));
         }
     }
     let out = File::create(output).map_err(|e| format!("cannot create {}: {e}", output.display()))?;
@@ -56,13 +80,16 @@ pub fn merge_recordings(
 
     let mut merged = Merged::default();
     let mut streams = Vec::new();
-    for (name, bytes) in &files {
+    for (name, bytes, until) in &files {
         let finished = mcap::Summary::read(bytes).ok().flatten().is_some();
-        if !finished {
+        if !finished && until.is_none() {
             merged.truncated.push(name.clone());
         }
         let stream = mcap::MessageStream::new(bytes).map_err(|e| format!("{name} is not an MCAP file: {e}"))?;
-        streams.push((name.clone(), stream.peekable()));
+        let until = *until;
+        let kept =
+            stream.filter(move |m| m.as_ref().map_or(true, |m| before_checkpoint(&m.channel.topic, m.log_time, until)));
+        streams.push((name.clone(), kept.peekable()));
     }
     // Same topic, schema, encoding and metadata: one channel in the output.
     let mut channels: HashMap<Key, u16> = HashMap::new();

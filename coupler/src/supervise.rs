@@ -195,7 +195,7 @@ fn describe(status: &std::process::ExitStatus) -> String {
 /// the processes started, their progress and messages shown, signals
 /// forwarded, a failure stopping the others, then the summary merged, the
 /// recording collected and the outcome reported as an exit status.
-pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool) -> ExitCode {
+pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool, resume: bool) -> ExitCode {
     let started = Instant::now();
     let method = scene.method();
     let solvers = solvers_for(method);
@@ -203,10 +203,11 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     let coupled = solvers.len() > 1;
     let prepared = (|| {
         let bins = solvers.iter().map(|(solver, _)| sibling_binary(solver)).collect::<Result<Vec<_>, _>>()?;
-        let (scene_toml, scene_file) = prepare_output(&out, solvers, &scene)?;
-        Ok::<_, String>((bins, scene_toml, scene_file))
+        let resume = if resume { Some(find_checkpoints(&out, &names, &scene)?) } else { None };
+        let (scene_toml, scene_file, carried) = prepare_output(&out, solvers, &scene, resume.is_some())?;
+        Ok::<_, String>((bins, scene_toml, scene_file, resume.map(|r| Resume { carried, ..r })))
     })();
-    let (bins, scene_toml, scene_file) = match prepared {
+    let (bins, scene_toml, scene_file, resume) = match prepared {
         Ok(p) => p,
         Err(e) => {
             eprintln!("coupler: {e}");
@@ -217,7 +218,13 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     // Concurrent: both work at once, one core each; sequential: they take turns with all cores.
     let threads = threads.or((coupled && scene.spec.coupling.schedule == Schedule::Concurrent).then_some(1));
     let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
-    let launch = Launch { scene_file: &scene_file, out: &out, threads, run_id: coupled.then_some(run_id.as_str()) };
+    let launch = Launch {
+        scene_file: &scene_file,
+        out: &out,
+        threads,
+        run_id: coupled.then_some(run_id.as_str()),
+        checkpoints: resume.as_ref().map(|r| r.checkpoints.as_slice()),
+    };
     let pids = match spawn_solvers(&bins, &launch, tx) {
         Ok(pids) => pids,
         Err(e) => {
@@ -226,7 +233,8 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
         }
     };
     eprintln!(
-        "coupler: running {} ({}) with {}{}, output in {}",
+        "coupler: {} {} ({}) with {}{}, output in {}",
+        if resume.is_some() { "resuming" } else { "running" },
         scene.spec.scene.name,
         method.name(),
         names.join(" + "),
@@ -249,15 +257,79 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     let interrupted = ended.interrupts > 0;
     let failed = ended.first_failure.is_some();
     let summary = finish_summary(&out, solvers, started.elapsed().as_secs_f64(), interrupted, failed);
-    let recording = collect_recording(&out, solvers, &scene_toml, summary.as_ref());
+    let recording = collect_recording(&out, solvers, &scene_toml, summary.as_ref(), resume.as_ref());
     conclude(&ended, &names, coupled, summary.as_ref(), &recording, &out)
+}
+
+/// Where a resumed run continues from.
+struct Resume {
+    /// Each process's checkpoint, in the order of its solvers.
+    checkpoints: Vec<PathBuf>,
+    /// Simulated time of the checkpoint, ns: the earlier recording is kept up to it.
+    cut_ns: u64,
+    /// The earlier recordings carried into the new `run.mcap`.
+    carried: Vec<PathBuf>,
+}
+
+/// The newest checkpoint every process of the run in `out` wrote at the
+/// same moment, or why there is none.
+fn find_checkpoints(out: &Path, names: &[&str], scene: &Scene) -> Result<Resume, String> {
+    let dir = runtime::checkpoint::folder(out);
+    let (found, skipped) = runtime::checkpoint::latest_common(&dir, names, scene);
+    for why in &skipped {
+        eprintln!("coupler: passed over {why}");
+    }
+    let Some(found) = found else {
+        return Err(format!(
+            "no checkpoint in {} that {} wrote at the same moment: the scene must set output.checkpoint_interval and the run must have reached its first one. Start it afresh with `coupler run {} --out {}`",
+            dir.display(),
+            names.join(" and "),
+            out.join("scene.toml").display(),
+            out.display()
+        ));
+    };
+    let time = found.iter().map(|(_, f)| f.driver.time).fold(0.0, f64::max);
+    eprintln!(
+        "coupler: continuing from t = {time:.5} s ({})",
+        found.iter().map(|(p, _)| p.display().to_string()).collect::<Vec<_>>().join(", ")
+    );
+    Ok(Resume {
+        checkpoints: found.into_iter().map(|(p, _)| p).collect(),
+        cut_ns: (time * 1e9).round() as u64,
+        carried: Vec::new(),
+    })
 }
 
 /// Creates `out`, removes a previous run's results from it (a reused
 /// directory must not show them as this run's) and writes the scene as
-/// resolved. Returns the scene's TOML and its file.
-fn prepare_output(out: &Path, solvers: &[(&str, &str)], scene: &Scene) -> Result<(String, PathBuf), String> {
+/// resolved. Returns the scene's TOML and its file. When `resuming`, the
+/// earlier recordings are kept aside instead (`previous.mcap`, and
+/// `previous-<process>.mcap` for files a killed coupler did not merge) and
+/// returned, to be carried into the new one.
+fn prepare_output(
+    out: &Path,
+    solvers: &[(&str, &str)],
+    scene: &Scene,
+    resuming: bool,
+) -> Result<(String, PathBuf, Vec<PathBuf>), String> {
     std::fs::create_dir_all(out).map_err(|e| format!("cannot create output directory {}: {e}", out.display()))?;
+    let mut carried = Vec::new();
+    if resuming {
+        let mut aside = vec![("run.mcap".to_string(), "previous.mcap".to_string())];
+        for (_, short) in solvers {
+            aside.push((format!("{short}.mcap"), format!("previous-{short}.mcap")));
+        }
+        for (from, to) in aside {
+            let (from, to) = (out.join(from), out.join(to));
+            if from.exists() {
+                std::fs::rename(&from, &to)
+                    .map_err(|e| format!("cannot move {} aside to {}: {e}", from.display(), to.display()))?;
+            }
+            if to.exists() {
+                carried.push(to);
+            }
+        }
+    }
     let mut stale = vec!["run.mcap".to_string(), "summary.json".into()];
     for (_, short) in solvers {
         stale.push(format!("{short}.mcap"));
@@ -274,7 +346,7 @@ fn prepare_output(out: &Path, solvers: &[(&str, &str)], scene: &Scene) -> Result
     let scene_file = out.join("scene.toml");
     std::fs::write(&scene_file, &scene_toml)
         .map_err(|e| format!("cannot write {}: {e} (is the disk full?)", scene_file.display()))?;
-    Ok((scene_toml, scene_file))
+    Ok((scene_toml, scene_file, carried))
 }
 
 /// How each solver process is started.
@@ -286,6 +358,8 @@ struct Launch<'a> {
     threads: Option<usize>,
     /// Coupled runs: the link's run id.
     run_id: Option<&'a str>,
+    /// A resumed run: each process's checkpoint.
+    checkpoints: Option<&'a [PathBuf]>,
 }
 
 /// Starts one process per binary, each watched by a task that forwards its
@@ -306,6 +380,9 @@ fn spawn_solvers(
         }
         if let Some(id) = launch.run_id {
             cmd.arg("--run-id").arg(id);
+        }
+        if let Some(c) = launch.checkpoints {
+            cmd.arg("--resume").arg(&c[k]);
         }
         cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).stdin(Stdio::null()).kill_on_drop(true);
         let child = match cmd.spawn() {
@@ -608,30 +685,49 @@ fn forward(pids: &[Option<u32>], statuses: &[Option<std::process::ExitStatus>], 
 }
 
 /// The run's recording: with one solver process its file renamed; with two,
-/// both merged into one timeline (the inputs removed once merged).
-fn collect_recording(out: &Path, solvers: &[(&str, &str)], scene_toml: &str, summary: Option<&RunSummary>) -> PathBuf {
+/// both merged into one timeline (the inputs removed once merged). A
+/// resumed run's recording is merged with what the earlier ones recorded up
+/// to the checkpoint; if it recorded nothing, the earlier one stays as it was.
+fn collect_recording(
+    out: &Path,
+    solvers: &[(&str, &str)],
+    scene_toml: &str,
+    summary: Option<&RunSummary>,
+    resume: Option<&Resume>,
+) -> PathBuf {
     let run = out.join("run.mcap");
     let inputs: Vec<PathBuf> = solvers.iter().map(|(_, short)| out.join(format!("{short}.mcap"))).collect();
-    if inputs.len() == 1 {
-        if inputs[0].exists() {
-            if let Err(e) = std::fs::rename(&inputs[0], &run) {
-                eprintln!("coupler: cannot move {} to {}: {e}", inputs[0].display(), run.display());
-                return inputs[0].clone();
+    let carried = resume.map_or(&[][..], |r| r.carried.as_slice());
+    if !inputs.iter().any(|p| p.exists()) {
+        if let Some(first) = carried.first() {
+            // Nothing new: the earlier recording is put back, uncut.
+            if carried.len() == 1 && std::fs::rename(first, &run).is_ok() {
+                return run;
             }
+            return first.clone();
         }
         return run;
     }
-    if !inputs.iter().any(|p| p.exists()) {
+    if inputs.len() == 1 && carried.is_empty() {
+        if let Err(e) = std::fs::rename(&inputs[0], &run) {
+            eprintln!("coupler: cannot move {} to {}: {e}", inputs[0].display(), run.display());
+            return inputs[0].clone();
+        }
         return run;
     }
     let json = summary.map(|s| serde_json::to_string_pretty(s).expect("serialises"));
-    let refs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
-    match crate::merge::merge_recordings(&refs, &run, scene_toml, json.as_deref()) {
+    let cut = resume.map(|r| r.cut_ns);
+    let sources: Vec<crate::merge::Source> = carried
+        .iter()
+        .map(|p| crate::merge::Source { path: p, until: cut })
+        .chain(inputs.iter().map(|p| crate::merge::Source { path: p, until: None }))
+        .collect();
+    match crate::merge::merge_recordings(&sources, &run, scene_toml, json.as_deref()) {
         Ok(merged) => {
             for t in &merged.truncated {
                 eprintln!("coupler: {t} ended early (its process stopped before finishing it); its complete chunks are in run.mcap");
             }
-            for p in &inputs {
+            for p in inputs.iter().chain(carried) {
                 let _ = std::fs::remove_file(p);
             }
             run

@@ -127,7 +127,7 @@ fn main() -> ExitCode {
             let progress_json = args.progress_json;
             let mut reporter = Reporter::new("dem_proc", progress_json);
             let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs/dem"));
-            let opts = RunOptions { out_dir, record: !args.no_record };
+            let opts = RunOptions { out_dir, record: !args.no_record, resume: args.resume.clone() };
             // Coupled: connect once the packing has its grain count.
             let link = match runtime::process::link_config("dem_proc", &args, &scene, &stop, 0) {
                 Ok(l) => l,

@@ -7,9 +7,11 @@ use std::sync::atomic::AtomicBool;
 use foxglove::schemas::{Color, PointCloud, Pose, SceneEntity, SceneUpdate, SpherePrimitive, Vector3};
 use serde::{Deserialize, Serialize};
 
+use runtime::checkpoint::{self, CheckpointFile, CheckpointWriter};
 use runtime::coupled::{Coupled, Exchange, ExchangeFailure, Side};
 use runtime::driver::{
-    drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError, StepExchange,
+    drive, Cadence, Checkpoints, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError,
+    StepExchange,
 };
 use runtime::exchange::{ExchangeHeader, HydroLoad, ParticleState};
 use runtime::metrics::{CouplingTimings, DemMetrics};
@@ -23,7 +25,7 @@ use schemas::topics;
 use crate::hydro::{capture_states, hold_loads, Connect};
 use crate::packing::{self, Packing, PackingError, PackingReport};
 use crate::setup::{walls, DemSetup};
-use crate::world::{Grains, Histories, World};
+use crate::world::{Grains, HeldLoads, Histories, World};
 
 /// Version of the `/dem/state` bincode layout.
 pub const STATE_VERSION: u32 = 2;
@@ -159,11 +161,34 @@ pub fn run(
 ) -> Result<RunSummary, RunError> {
     let setup = DemSetup::from_scene(scene);
     let out = &scene.spec.output;
-    let (packing, early_log) = prepare_packing(scene, &setup, stop, progress)?;
-    let rep = packing.report.clone();
-    let world = collapse_world(scene, &setup, &packing);
-    drop(packing);
-    let coordination_initial = world.mean_coordination();
+    let resumed = match &opts.resume {
+        Some(path) => Some(read_checkpoint(path, scene)?),
+        None => None,
+    };
+    let (world, rep, early_log, coordination_initial, fronts) = match &resumed {
+        Some((file, c)) => {
+            let mut world = c.state.restore(scene);
+            if let Some(held) = &c.held {
+                world.set_held_loads(held);
+            }
+            let line = format!(
+                "resumed from {} (t = {:.5} s, step {})",
+                opts.resume.as_ref().expect("resuming").display(),
+                file.driver.time,
+                file.driver.steps
+            );
+            progress.log(&line);
+            (world, c.packing.clone(), vec![line], c.coordination_initial, Some(c.fronts.clone()))
+        }
+        None => {
+            let (packing, early_log) = prepare_packing(scene, &setup, stop, progress)?;
+            let rep = packing.report.clone();
+            let world = collapse_world(scene, &setup, &packing);
+            drop(packing);
+            let coordination_initial = world.mean_coordination();
+            (world, rep, early_log, coordination_initial, None)
+        }
+    };
     let peer = match connect {
         Some(c) => {
             progress.log(&format!("connecting to lbm_proc with {} grains", world.len()));
@@ -196,28 +221,46 @@ pub fn run(
         steps_per_state: Some(Cadence::steps_in(out.state_interval.unwrap_or(5.0 * out.record_interval), dt)),
         step_limit: (out.end_time / dt).ceil() as u64,
         state_at_start: true,
+        // Coupled: whole exchanges, so that both processes' checkpoints meet.
+        steps_per_checkpoint: out.checkpoint_interval.map(|i| {
+            let ratio = if coupled { scene.spec.coupling.ratio as u64 } else { 1 };
+            ratio * Cadence::steps_in(i, dt * ratio as f64)
+        }),
     };
+    let mut checkpoints = Checkpoints::default();
+    if out.checkpoint_interval.is_some() {
+        checkpoints.writer = Some(CheckpointWriter::new(&opts.out_dir, "dem_proc", scene).map_err(RecordError::from)?);
+    }
     let last_release = world.walls.iter().map(|w| w.release_time).filter(|t| t.is_finite()).fold(0.0, f64::max);
-    let front = Fronts {
+    let front = fronts.unwrap_or_else(|| Fronts {
         solid_fraction: if rep.porosity_bulk.is_finite() { 1.0 - rep.porosity_bulk } else { 0.6 },
         width: scene.spec.domain.max[1] - scene.spec.domain.min[1],
         bin: setup.max_diameter,
         ..Fronts::default()
-    };
+    });
+    let t0 = world.time;
     for line in &early_log {
-        rec.log(0.0, log_level::INFO, line)?;
+        rec.log(t0, log_level::INFO, line)?;
     }
-    rec.log(
-        0.0,
-        log_level::INFO,
-        &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk),
-    )?;
+    if resumed.is_none() {
+        rec.log(
+            0.0,
+            log_level::INFO,
+            &format!("collapse starts with {} grains, porosity {:.4}", world.len(), rep.porosity_bulk),
+        )?;
+    }
     let mut exchange = peer.map(|p| {
         let c = &scene.spec.coupling;
-        Exchange::new(p, Side::dem(c.schedule), c.ratio as u64, "lbm_proc")
+        let x = Exchange::new(p, Side::dem(c.schedule), c.ratio as u64, "lbm_proc")
             .expecting(world.len())
-            .recording_into(channels.as_ref().and_then(|c| c.received))
+            .recording_into(channels.as_ref().and_then(|c| c.received));
+        match resumed.as_ref().and_then(|(f, _)| f.exchange) {
+            Some(state) => x.resuming(state, false),
+            None => x,
+        }
     });
+    let coupling_before = [exchange.as_ref().map_or(0.0, |x| x.figures().exchanges as f64), 0.0, 0.0, 0.0];
+    checkpoints.resumed = resumed.map(|(f, _)| f.driver);
     let mut solver = DemRun {
         scene,
         setup,
@@ -229,7 +272,7 @@ pub fn run(
         last_release,
         coordination_initial,
         packing: rep,
-        coupling_before: [0.0; 4],
+        coupling_before,
     };
     let end_time = out.end_time;
     drive(
@@ -238,6 +281,7 @@ pub fn run(
         &mut rec,
         cadence,
         RestRule::of(out),
+        &mut checkpoints,
         stop,
         &mut |t, steps| progress.phase("collapse", t, end_time, steps),
         &summary_path,
@@ -294,6 +338,38 @@ fn prepare_packing(
         );
     }
     Ok((packing, early_log))
+}
+
+/// A DEM run's checkpoint ([`Solver::checkpoint`]): the state, the loads
+/// it holds (coupled), the fronts so far and what the packing measured.
+#[derive(Deserialize)]
+struct DemCheckpoint {
+    state: DemState,
+    held: Option<HeldLoads>,
+    fronts: Fronts,
+    coordination_initial: f64,
+    packing: PackingReport,
+}
+
+#[derive(Serialize)]
+struct DemCheckpointRef<'a> {
+    state: DemState,
+    held: Option<HeldLoads>,
+    fronts: &'a Fronts,
+    coordination_initial: f64,
+    packing: &'a PackingReport,
+}
+
+fn read_checkpoint(path: &Path, scene: &Scene) -> Result<(CheckpointFile, DemCheckpoint), RunError> {
+    let file = checkpoint::read(path, "dem_proc", scene).map_err(RecordError::from)?;
+    let c =
+        bincode::serde::decode_from_slice(&file.solver, bincode::config::standard()).map(|(c, _)| c).map_err(|e| {
+            RecordError::from(checkpoint::CheckpointError::Damaged {
+                path: path.to_path_buf(),
+                why: format!("its DEM state does not decode ({e}): written by another version of dem_proc?"),
+            })
+        })?;
+    Ok((file, c))
 }
 
 /// The DEM as the run driver steps it.
@@ -378,6 +454,17 @@ impl Solver for DemRun<'_> {
             r.log_bytes(ch.state, self.world.time, DemState::capture(&self.world).encode())?;
         }
         Ok(())
+    }
+
+    fn checkpoint(&self) -> Vec<u8> {
+        let c = DemCheckpointRef {
+            state: DemState::capture(&self.world),
+            held: self.world.held_loads(),
+            fronts: &self.front,
+            coordination_initial: self.coordination_initial,
+            packing: &self.packing,
+        };
+        bincode::serde::encode_to_vec(&c, bincode::config::standard()).expect("a checkpoint encodes")
     }
 
     fn summary(&mut self, end: &RunEnd) -> RunSummary {
@@ -499,7 +586,7 @@ fn check_blow_up(world: &World, setup: &DemSetup) -> Result<(), RunError> {
 }
 
 /// Front samples of a run: all grains, and grains touching another grain.
-#[derive(Default)]
+#[derive(Default, Clone, Serialize, Deserialize)]
 struct Fronts {
     all: Vec<FrontSample>,
     connected: Vec<FrontSample>,

@@ -163,6 +163,18 @@ struct BlockSums {
     contacts: Vec<u16>,
 }
 
+/// The external loads a world holds (per storage slot), with what its
+/// next half-kick and its impulse diagnostic carry of them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HeldLoads {
+    pub force: Vec<[f64; 3]>,
+    pub torque: Vec<[f64; 3]>,
+    /// Σ force inside the grains' stored forces.
+    pub in_forces: [f64; 3],
+    /// ∫ Σ force dt so far, N s.
+    pub impulse: [f64; 3],
+}
+
 /// Everything the DEM integrates.
 #[derive(Debug)]
 pub struct World {
@@ -309,6 +321,26 @@ impl World {
         self.external_torque[slot] = torque;
         self.has_external_load = true;
         self.external_total = None;
+    }
+
+    /// The external loads held now, for a checkpoint (None: never set).
+    pub fn held_loads(&self) -> Option<HeldLoads> {
+        self.has_external_load.then(|| HeldLoads {
+            force: self.external_force.clone(),
+            torque: self.external_torque.clone(),
+            in_forces: self.external_in_forces,
+            impulse: self.external_impulse,
+        })
+    }
+
+    /// Holds the loads of a checkpoint, as the world that wrote it held them.
+    pub fn set_held_loads(&mut self, held: &HeldLoads) {
+        self.external_force.clone_from(&held.force);
+        self.external_torque.clone_from(&held.torque);
+        self.has_external_load = true;
+        self.external_total = None;
+        self.external_in_forces = held.in_forces;
+        self.external_impulse = held.impulse;
     }
 
     /// Σ over the grains of the external force held now, N (zero if none).

@@ -221,6 +221,14 @@ pub struct Coupling {
     gain: ForcingGain,
 }
 
+/// The liquid each sphere held after a collected step (momentum and
+/// angular momentum about its centre, lattice units) and that step's count.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct HeldLiquid {
+    pub per_sphere: Vec<([f64; 3], [f64; 3])>,
+    pub step: Option<u64>,
+}
+
 /// R* with R*³ + R*/4 = R³ (Newton from R; the map is monotone and convex).
 fn ramp_radius(r: f64) -> f64 {
     let mut x = r;
@@ -650,6 +658,19 @@ impl Coupling {
         }
         self.forced_rows[rows] = sum;
         self.crossings = crossings;
+    }
+
+    /// The liquid the spheres held after the last collected step: what the
+    /// next step's interior inertia starts from (a checkpoint keeps it).
+    pub fn held_liquid(&self) -> HeldLiquid {
+        HeldLiquid { per_sphere: self.held.clone(), step: self.held_at }
+    }
+
+    /// Continues from a checkpoint's [`Coupling::held_liquid`].
+    pub fn restore_held_liquid(&mut self, held: HeldLiquid) {
+        self.results.resize(held.per_sphere.len(), SphereForce::default());
+        self.held = held.per_sphere;
+        self.held_at = held.step;
     }
 
     /// The force and torque on each sphere (in the order given to

@@ -53,7 +53,7 @@ mod kernel;
 #[cfg(test)]
 mod tests;
 
-pub use forcing::{forcing_gain, uses_effective_tau, AppliedForce, ForcedCell};
+pub use forcing::{forcing_gain, uses_effective_tau, AppliedForce, ForcedCell, ForcingMemory};
 pub use free_surface::{InterfaceCell, Sample};
 use kernel::*;
 

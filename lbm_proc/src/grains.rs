@@ -22,6 +22,16 @@ pub struct GrainForcing {
 }
 
 impl GrainForcing {
+    /// The coupling's memory of the last step (a checkpoint keeps it).
+    pub fn held_liquid(&self) -> crate::coupling::HeldLiquid {
+        self.coupling.held_liquid()
+    }
+
+    /// Continues from a checkpoint's [`GrainForcing::held_liquid`].
+    pub fn restore_held_liquid(&mut self, held: crate::coupling::HeldLiquid) {
+        self.coupling.restore_held_liquid(held);
+    }
+
     pub fn new(coupling: Coupling) -> Self {
         GrainForcing { coupling, added_buoyancy: [0.0; 3], spheres: Vec::new(), coupling_seconds: 0.0 }
     }

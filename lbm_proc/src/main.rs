@@ -129,7 +129,7 @@ fn main() -> ExitCode {
             let progress_json = args.progress_json;
             let mut reporter = Reporter::new("lbm_proc", progress_json);
             let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs/lbm"));
-            let opts = RunOptions { out_dir, record: !args.no_record };
+            let opts = RunOptions { out_dir, record: !args.no_record, resume: args.resume.clone() };
             let mut link = match runtime::process::link_config("lbm_proc", &args, &scene, &stop, 0) {
                 Ok(None) => None,
                 Ok(Some(cfg)) => {

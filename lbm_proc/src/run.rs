@@ -7,9 +7,11 @@ use std::sync::atomic::AtomicBool;
 use foxglove::schemas::{Grid, PointCloud, Pose, Quaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
+use runtime::checkpoint::{self, CheckpointFile, CheckpointWriter};
 use runtime::coupled::{Coupled, Exchange, ExchangeFailure, Side};
 use runtime::driver::{
-    drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError, StepExchange,
+    drive, Cadence, Checkpoints, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError,
+    StepExchange,
 };
 use runtime::exchange::{ExchangeHeader, HydroLoad, ParticleState, StatePeer};
 use runtime::metrics::{CouplingTimings, LbmMetrics};
@@ -20,8 +22,8 @@ use schemas::scene::Scene;
 use schemas::summary::{ExchangeDetails, ExchangeSummary, LbmDetails, RunSummary, Throughput};
 use schemas::topics;
 
-use crate::coupling::{Coupling, CouplingError};
-use crate::fluid::{flags, Fluid, FluidState, Sample};
+use crate::coupling::{Coupling, CouplingError, HeldLiquid};
+use crate::fluid::{flags, Fluid, FluidState, ForcingMemory, Sample};
 use crate::grains::GrainForcing;
 use crate::lattice::CS2;
 use crate::setup::{LbmSetup, SetupError};
@@ -101,8 +103,9 @@ struct Channels {
 }
 
 /// What the frames gather over the run for the summary.
-#[derive(Default)]
+#[derive(Default, Serialize, Deserialize)]
 struct Gathered {
+    #[serde(skip)]
     scratch: Vec<(f64, f64)>,
     front: Vec<FrontSample>,
     max_mach: f64,
@@ -139,9 +142,24 @@ pub fn run(
     for note in &setup.notes {
         progress.log(note);
     }
-    let mut fluid = initial_fluid(scene, &setup)?;
-    let mass_initial = fluid.liquid_mass();
-    let active_initial = fluid.active_cells();
+    let resumed = match &opts.resume {
+        Some(path) => Some(read_checkpoint(path, scene)?),
+        None => None,
+    };
+    let (fluid, mass_initial, active_initial) = match &resumed {
+        Some((_, c)) => {
+            let mut fluid =
+                Fluid::from_state(c.state.fluid.clone(), setup.params).map_err(|e| RunError::Lattice(e.to_string()))?;
+            fluid.restore_returned_excess(c.returned.0, c.returned.1);
+            fluid.restore_forcing_memory(c.forcing.clone());
+            (fluid, c.mass_initial, c.active_initial)
+        }
+        None => {
+            let fluid = initial_fluid(scene, &setup)?;
+            let (m, a) = (fluid.liquid_mass(), fluid.active_cells());
+            (fluid, m, a)
+        }
+    };
 
     std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
     let (mcap_path, summary_path) = output_paths(&opts.out_dir);
@@ -160,8 +178,19 @@ pub fn run(
             },
         })
     })?;
-    for note in &setup.notes {
-        rec.log(0.0, log_level::INFO, note)?;
+    if let Some((file, _)) = &resumed {
+        let line = format!(
+            "resumed from {} (t = {:.5} s, step {})",
+            opts.resume.as_ref().expect("resuming").display(),
+            file.driver.time,
+            file.driver.steps
+        );
+        progress.log(&line);
+        rec.log(file.driver.time, log_level::INFO, &line)?;
+    } else {
+        for note in &setup.notes {
+            rec.log(0.0, log_level::INFO, note)?;
+        }
     }
 
     let dt = setup.units.dt();
@@ -172,7 +201,13 @@ pub fn run(
         // Coupled, the DEM decides when the run ends; the bound only guards a runaway peer.
         step_limit: if peer.is_some() { total_steps + 1 } else { total_steps },
         state_at_start: false,
+        // Coupled: one step per exchange, as the DEM's whole exchanges.
+        steps_per_checkpoint: out.checkpoint_interval.map(|i| Cadence::steps_in(i, dt)),
     };
+    let mut checkpoints = Checkpoints::default();
+    if out.checkpoint_interval.is_some() {
+        checkpoints.writer = Some(CheckpointWriter::new(&opts.out_dir, "lbm_proc", scene).map_err(RecordError::from)?);
+    }
     let forcing = match peer {
         Some(_) => Some(
             GrainForcing::new(
@@ -184,28 +219,65 @@ pub fn run(
         ),
         None => None,
     };
-    let mut gates_removed = vec![false; setup.gates.len()];
-    release_gates(&mut fluid, &setup, &mut gates_removed, 0.0, &mut rec)?;
+    let mut fluid = fluid;
+    let lagged_peer = scene.spec.coupling.schedule == schemas::scene::Schedule::Concurrent;
     let mut exchange = peer.map(|p| {
-        Exchange::new(Box::new(p), Side::ReceivesFirst, 1, "dem_proc")
-            .recording_into(channels.as_ref().and_then(|c| c.received))
+        let x = Exchange::new(Box::new(p), Side::ReceivesFirst, 1, "dem_proc")
+            .recording_into(channels.as_ref().and_then(|c| c.received));
+        match resumed.as_ref().and_then(|(f, _)| f.exchange) {
+            Some(state) => x.resuming(state, lagged_peer),
+            None => x,
+        }
     });
-    let mut solver = LbmRun {
-        scene,
-        setup,
-        fluid,
-        gates_removed,
-        time: 0.0,
-        steps: 0,
-        forcing,
-        header: ExchangeHeader::new(0, 0.0),
-        states: Vec::new(),
-        loads: Vec::new(),
-        coupling_before: [0.0; 4],
-        channels,
-        gathered: Gathered::default(),
-        mass_initial,
-        active_initial,
+    let coupling_before = [exchange.as_ref().map_or(0.0, |x| x.figures().exchanges as f64), 0.0, 0.0, 0.0];
+    let mut solver = match resumed {
+        Some((file, c)) => {
+            checkpoints.resumed = Some(file.driver);
+            let mut forcing = forcing;
+            if let Some(f) = forcing.as_mut() {
+                f.restore_held_liquid(c.held_liquid);
+            }
+            LbmRun {
+                scene,
+                setup,
+                fluid,
+                gates_removed: c.state.gates_removed,
+                time: c.state.time,
+                steps: c.steps,
+                forcing,
+                header: ExchangeHeader::new(c.header.0, c.header.1),
+                states: Vec::new(),
+                loads: runtime::exchange::decode_loads(&c.loads)
+                    .map_err(|e| RunError::Lattice(format!("the checkpoint's last loads do not decode: {e}")))?
+                    .1,
+                coupling_before,
+                channels,
+                gathered: c.gathered,
+                mass_initial,
+                active_initial,
+            }
+        }
+        None => {
+            let mut gates_removed = vec![false; setup.gates.len()];
+            release_gates(&mut fluid, &setup, &mut gates_removed, 0.0, &mut rec)?;
+            LbmRun {
+                scene,
+                setup,
+                fluid,
+                gates_removed,
+                time: 0.0,
+                steps: 0,
+                forcing,
+                header: ExchangeHeader::new(0, 0.0),
+                states: Vec::new(),
+                loads: Vec::new(),
+                coupling_before,
+                channels,
+                gathered: Gathered::default(),
+                mass_initial,
+                active_initial,
+            }
+        }
     };
     let end_time = out.end_time;
     drive(
@@ -214,10 +286,67 @@ pub fn run(
         &mut rec,
         cadence,
         RestRule::of(out),
+        &mut checkpoints,
         stop,
         &mut |t, steps| progress.phase("flow", t, end_time, steps),
         &summary_path,
     )
+}
+
+/// An LBM run's checkpoint ([`Solver::checkpoint`]): the lattice, the
+/// exchange's last header and answer (coupled), what the frames gathered.
+#[derive(Deserialize)]
+struct LbmCheckpoint {
+    state: LbmState,
+    steps: u64,
+    /// Index and time of the last exchange received.
+    header: (u64, f64),
+    /// The loads of the last step (a lagged peer takes them after a resume),
+    /// in the exchange's recorded form.
+    loads: Vec<u8>,
+    gathered: Gathered,
+    mass_initial: f64,
+    active_initial: usize,
+    /// The fluid's pending-excess diagnostics (returns, mass).
+    returned: (u64, f64),
+    /// The direct forcing and the grains' held liquid of the last step.
+    forcing: ForcingMemory,
+    held_liquid: HeldLiquid,
+}
+
+#[derive(Serialize)]
+struct LbmCheckpointRef<'a> {
+    state: LbmStateRef<'a>,
+    steps: u64,
+    header: (u64, f64),
+    loads: Vec<u8>,
+    gathered: &'a Gathered,
+    mass_initial: f64,
+    active_initial: usize,
+    returned: (u64, f64),
+    forcing: ForcingMemory,
+    held_liquid: HeldLiquid,
+}
+
+/// [`LbmState`] borrowing the lattice (no copy of the populations).
+#[derive(Serialize)]
+struct LbmStateRef<'a> {
+    version: u32,
+    time: f64,
+    gates_removed: &'a [bool],
+    fluid: &'a FluidState<f32>,
+}
+
+fn read_checkpoint(path: &Path, scene: &Scene) -> Result<(CheckpointFile, LbmCheckpoint), RunError> {
+    let file = checkpoint::read(path, "lbm_proc", scene).map_err(RecordError::from)?;
+    let c =
+        bincode::serde::decode_from_slice(&file.solver, bincode::config::standard()).map(|(c, _)| c).map_err(|e| {
+            RecordError::from(checkpoint::CheckpointError::Damaged {
+                path: path.to_path_buf(),
+                why: format!("its lattice does not decode ({e}): written by another version of lbm_proc?"),
+            })
+        })?;
+    Ok((file, c))
 }
 
 /// The lattice as the run driver steps it.
@@ -254,7 +383,9 @@ impl Coupled for LbmRun<'_> {
     type Sends = HydroLoad;
     type Receives = ParticleState;
     fn outgoing(&mut self, out: &mut Vec<HydroLoad>) {
-        std::mem::swap(out, &mut self.loads);
+        // Copied, not swapped: a checkpoint keeps the last answer (a lagged
+        // DEM takes it one exchange late, so after a resume it is sent again).
+        out.clone_from(&self.loads);
     }
     fn incoming(&mut self, header: &ExchangeHeader, states: &mut Vec<ParticleState>) -> Result<(), RunError> {
         self.header = *header;
@@ -340,6 +471,31 @@ impl Solver for LbmRun<'_> {
             r.log_bytes(ch.state, self.time, state.encode())?;
         }
         Ok(())
+    }
+
+    fn checkpoint(&self) -> Vec<u8> {
+        let c = LbmCheckpointRef {
+            state: LbmStateRef {
+                version: STATE_VERSION,
+                time: self.time,
+                gates_removed: &self.gates_removed,
+                fluid: self.fluid.state(),
+            },
+            steps: self.steps,
+            header: (self.header.exchange, self.header.time),
+            loads: {
+                let mut bytes = Vec::new();
+                runtime::exchange::encode_loads(&self.header, &self.loads, &mut bytes);
+                bytes
+            },
+            gathered: &self.gathered,
+            mass_initial: self.mass_initial,
+            active_initial: self.active_initial,
+            returned: (self.fluid.pending_returns(), self.fluid.returned_excess()),
+            forcing: self.fluid.forcing_memory(),
+            held_liquid: self.forcing.as_ref().map(|f| f.held_liquid()).unwrap_or_default(),
+        };
+        bincode::serde::encode_to_vec(&c, bincode::config::standard()).expect("a checkpoint encodes")
     }
 
     fn summary(&mut self, end: &RunEnd) -> RunSummary {

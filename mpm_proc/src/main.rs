@@ -93,7 +93,7 @@ fn main() -> ExitCode {
             }
             let mut reporter = Reporter::new("mpm_proc", args.progress_json);
             let out_dir = args.out.clone().unwrap_or_else(|| PathBuf::from("runs/mpm"));
-            let opts = RunOptions { out_dir, record: !args.no_record };
+            let opts = RunOptions { out_dir, record: !args.no_record, resume: args.resume.clone() };
             exit_after_run("mpm_proc", args.progress_json, run(&scene, &opts, &stop, &mut reporter))
         }
     }

@@ -10,7 +10,10 @@ use foxglove::schemas::PointCloud;
 use serde::{Deserialize, Serialize};
 
 use crate::plan::SceneMpm;
-use runtime::driver::{drive, Cadence, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError};
+use runtime::checkpoint::{self, CheckpointWriter};
+use runtime::driver::{
+    drive, Cadence, Checkpoints, Flow, FrameClock, FrameReport, Recording, RestRule, RunEnd, Solver, StepError,
+};
 use runtime::metrics::MpmMetrics;
 use runtime::process::{Progress, RunOptions};
 use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError};
@@ -77,7 +80,7 @@ pub fn output_paths(out_dir: &Path) -> (PathBuf, PathBuf) {
 }
 
 /// What the gravity phase did.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 pub struct GravityPhase {
     pub steps: u64,
     pub time: f64,
@@ -137,8 +140,9 @@ struct Channels {
 }
 
 /// What the frames gather over the run for the summary.
-#[derive(Default)]
+#[derive(Default, Serialize, Deserialize)]
 struct Gathered {
+    #[serde(skip)]
     scratch: Vec<(f64, f64)>,
     front: Vec<FrontSample>,
     liquid_front: Vec<FrontSample>,
@@ -202,6 +206,34 @@ pub fn run(
     rayon::scope(|_| run_on_pool(scene, opts, stop, progress))
 }
 
+/// An MPM run's checkpoint ([`Solver::checkpoint`]): the state, what the
+/// frames gathered and what the set-up measured.
+#[derive(Serialize, Deserialize)]
+struct MpmCheckpoint {
+    state: MpmState,
+    gathered: Gathered,
+    gravity: GravityPhase,
+    porosity_initial: f64,
+    soil_top: f64,
+    solid_mass0: f64,
+    liquid_mass0: f64,
+    /// The pore-pressure peak since the last frame.
+    pore_pressure_peak: f64,
+}
+
+/// The same, borrowing the run's parts (no copy of the point arrays).
+#[derive(Serialize)]
+struct MpmCheckpointRef<'a> {
+    state: &'a MpmState,
+    gathered: &'a Gathered,
+    gravity: &'a GravityPhase,
+    porosity_initial: f64,
+    soil_top: f64,
+    solid_mass0: f64,
+    liquid_mass0: f64,
+    pore_pressure_peak: f64,
+}
+
 /// The MPM as the run driver steps it, with what its frames and summary need.
 struct MpmRun<'a> {
     scene: &'a Scene,
@@ -242,42 +274,56 @@ fn run_on_pool(
             state: b.state_channel(topics::MPM_STATE, "mpm_proc::run::MpmStateRecord", STATE_VERSION)?,
         })
     })?;
-    for n in &notes {
-        rec.log(0.0, log_level::INFO, n)?;
+    if opts.resume.is_none() {
+        for n in &notes {
+            rec.log(0.0, log_level::INFO, n)?;
+        }
     }
 
-    let gravity = gravity_phase(scene, &mut mpm, stop, progress);
-    if gravity.steps > 0 {
-        let msg = format!(
-            "gravity phase: {} steps ({:.4} s simulated, {:.1} s wall), fastest point {:.2e} m/s at its end",
-            gravity.steps, gravity.time, gravity.wall_seconds, gravity.max_speed
-        );
-        progress.log(&msg);
-        rec.log(0.0, log_level::INFO, &msg)?;
-    }
     let dt = mpm.params.dt;
     let cadence = Cadence {
         steps_per_frame: Cadence::steps_in(out.record_interval, dt),
         steps_per_state: Some(Cadence::steps_in(out.state_interval.unwrap_or(5.0 * out.record_interval), dt)),
         step_limit: (out.end_time / dt).ceil() as u64,
         state_at_start: true,
+        steps_per_checkpoint: out.checkpoint_interval.map(|i| Cadence::steps_in(i, dt)),
     };
-    release_gates(&mut mpm, &gates, &mut rec)?;
-    mpm.take_pore_pressure_peak(); // the gravity phase's are not the collapse's
-    let mut solver = MpmRun {
-        scene,
-        solid_mass0: mpm.state.solid.set.total_mass(),
-        liquid_mass0: mpm.state.liquid.set.total_mass(),
-        points: (mpm.state.solid.set.len() + mpm.state.liquid.set.len()) as f64,
-        speed_limit: 0.5 * scene.mpm_time_step().max_speed,
-        mid_width: (0.5 * (scene.spec.domain.min[1] + scene.spec.domain.max[1])) as f32,
-        mpm,
-        gates,
-        channels,
-        gathered: Gathered::default(),
-        gravity,
-        porosity_initial,
-        soil_top,
+    let mut checkpoints = Checkpoints::default();
+    if out.checkpoint_interval.is_some() {
+        checkpoints.writer = Some(CheckpointWriter::new(&opts.out_dir, "mpm_proc", scene).map_err(RecordError::from)?);
+    }
+    let mut solver = match &opts.resume {
+        Some(path) => {
+            let file = checkpoint::read(path, "mpm_proc", scene).map_err(RecordError::from)?;
+            let c: MpmCheckpoint = decode_checkpoint(&file.solver, path)?;
+            mpm.state = c.state;
+            mpm.apply_gate_fixities();
+            mpm.restore_pore_pressure_peak(c.pore_pressure_peak);
+            let msg =
+                format!("resumed from {} (t = {:.5} s, step {})", path.display(), file.driver.time, file.driver.steps);
+            progress.log(&msg);
+            rec.log(file.driver.time, log_level::INFO, &msg)?;
+            checkpoints.resumed = Some(file.driver);
+            MpmRun::new(scene, mpm, gates, channels, c.gravity, c.porosity_initial, c.soil_top).with_gathered(
+                c.gathered,
+                c.solid_mass0,
+                c.liquid_mass0,
+            )
+        }
+        None => {
+            let gravity = gravity_phase(scene, &mut mpm, stop, progress);
+            if gravity.steps > 0 {
+                let msg = format!(
+                    "gravity phase: {} steps ({:.4} s simulated, {:.1} s wall), fastest point {:.2e} m/s at its end",
+                    gravity.steps, gravity.time, gravity.wall_seconds, gravity.max_speed
+                );
+                progress.log(&msg);
+                rec.log(0.0, log_level::INFO, &msg)?;
+            }
+            release_gates(&mut mpm, &gates, &mut rec)?;
+            mpm.take_pore_pressure_peak(); // the gravity phase's are not the collapse's
+            MpmRun::new(scene, mpm, gates, channels, gravity, porosity_initial, soil_top)
+        }
     };
     let end_time = out.end_time;
     drive(
@@ -286,10 +332,56 @@ fn run_on_pool(
         &mut rec,
         cadence,
         RestRule::of(out),
+        &mut checkpoints,
         stop,
         &mut |t, steps| progress.phase("collapse", t, end_time, steps),
         &summary_path,
     )
+}
+
+impl<'a> MpmRun<'a> {
+    fn new(
+        scene: &'a Scene,
+        mpm: Mpm,
+        gates: Vec<(String, f64)>,
+        channels: Option<Channels>,
+        gravity: GravityPhase,
+        porosity_initial: f64,
+        soil_top: f64,
+    ) -> Self {
+        MpmRun {
+            scene,
+            solid_mass0: mpm.state.solid.set.total_mass(),
+            liquid_mass0: mpm.state.liquid.set.total_mass(),
+            points: (mpm.state.solid.set.len() + mpm.state.liquid.set.len()) as f64,
+            speed_limit: 0.5 * scene.mpm_time_step().max_speed,
+            mid_width: (0.5 * (scene.spec.domain.min[1] + scene.spec.domain.max[1])) as f32,
+            mpm,
+            gates,
+            channels,
+            gathered: Gathered::default(),
+            gravity,
+            porosity_initial,
+            soil_top,
+        }
+    }
+
+    /// A resumed run's figures, as the interrupted run had gathered them.
+    fn with_gathered(mut self, gathered: Gathered, solid_mass0: f64, liquid_mass0: f64) -> Self {
+        self.gathered = gathered;
+        self.solid_mass0 = solid_mass0;
+        self.liquid_mass0 = liquid_mass0;
+        self
+    }
+}
+
+fn decode_checkpoint<T: serde::de::DeserializeOwned>(bytes: &[u8], path: &Path) -> Result<T, RunError> {
+    bincode::serde::decode_from_slice(bytes, bincode::config::standard()).map(|(c, _)| c).map_err(|e| {
+        RunError::from(RecordError::from(checkpoint::CheckpointError::Damaged {
+            path: path.to_path_buf(),
+            why: format!("its MPM state does not decode ({e}): written by another version of mpm_proc?"),
+        }))
+    })
 }
 
 impl Solver for MpmRun<'_> {
@@ -331,6 +423,20 @@ impl Solver for MpmRun<'_> {
             r.log_bytes(ch.state, self.mpm.state.time, MpmStateRecord::encode_state(&self.mpm.state))?;
         }
         Ok(())
+    }
+
+    fn checkpoint(&self) -> Vec<u8> {
+        let c = MpmCheckpointRef {
+            state: &self.mpm.state,
+            gathered: &self.gathered,
+            gravity: &self.gravity,
+            porosity_initial: self.porosity_initial,
+            soil_top: self.soil_top,
+            solid_mass0: self.solid_mass0,
+            liquid_mass0: self.liquid_mass0,
+            pore_pressure_peak: self.mpm.pore_pressure_peak(),
+        };
+        bincode::serde::encode_to_vec(&c, bincode::config::standard()).expect("a checkpoint encodes")
     }
 
     fn summary(&mut self, end: &RunEnd) -> RunSummary {

@@ -436,6 +436,16 @@ impl Mpm {
         self.apply_gate_fixities();
     }
 
+    /// The largest pore pressure since the last [`Mpm::take_pore_pressure_peak`], Pa.
+    pub fn pore_pressure_peak(&self) -> f64 {
+        self.pore_pressure_peak
+    }
+
+    /// Sets the running peak (a resumed run continues the interrupted one's).
+    pub fn restore_pore_pressure_peak(&mut self, peak: f64) {
+        self.pore_pressure_peak = peak;
+    }
+
     /// The largest pore pressure at the end of any step since the last
     /// call (0 before any liquid pressure), and starts a new interval.
     pub fn take_pore_pressure_peak(&mut self) -> f64 {

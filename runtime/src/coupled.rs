@@ -28,6 +28,7 @@ use schemas::messages::{check_order, ExchangeHeader, HydroLoad, ParticleState, F
 use schemas::scene::Schedule;
 use schemas::summary::RunStatus;
 
+use crate::checkpoint::ExchangeState;
 use crate::driver::{Flow, Recording, Solver, StepError};
 use crate::exchange::{encode_loads, encode_states, Peer, PeerError};
 use crate::record::{log_level, ChannelId, RecordError};
@@ -137,6 +138,10 @@ pub struct Exchange<'p, S, R> {
     /// Channel that records each received message, when recording them.
     record_into: Option<ChannelId>,
     figures: ExchangeFigures,
+    /// A side that receives first, resumed under a lagged peer: its last
+    /// answer was in flight when the checkpoint was taken, and is sent again
+    /// before the next receive.
+    resend_answer: bool,
 }
 
 impl<S, R> std::fmt::Debug for Exchange<'_, S, R> {
@@ -166,6 +171,30 @@ impl<'p, S: Payload, R: Payload> Exchange<'p, S, R> {
             receives: Vec::new(),
             record_into: None,
             figures: ExchangeFigures::default(),
+            resend_answer: false,
+        }
+    }
+
+    /// Continues from a checkpoint's position. `peer_lagged`: the peer
+    /// takes each answer one exchange late (the concurrent schedule), so a
+    /// side that receives first sends its last answer again first (the
+    /// solver restored from the same checkpoint gives the same message).
+    pub fn resuming(mut self, state: ExchangeState, peer_lagged: bool) -> Self {
+        self.next = state.next;
+        self.last = ExchangeHeader::new(state.last_exchange, state.last_time);
+        self.figures.exchanges = state.exchanges;
+        // Exchange 1 of a lagged peer re-holds 0's answer: nothing is in flight before 2.
+        self.resend_answer = self.side == Side::ReceivesFirst && peer_lagged && state.next >= 2;
+        self
+    }
+
+    /// Its position, for a checkpoint.
+    pub fn state(&self) -> ExchangeState {
+        ExchangeState {
+            next: self.next,
+            last_exchange: self.last.exchange,
+            last_time: self.last.time,
+            exchanges: self.figures.exchanges,
         }
     }
 
@@ -289,6 +318,16 @@ impl<'p, S: Payload, R: Payload> Exchange<'p, S, R> {
                 }
             }
             Side::ReceivesFirst => {
+                if std::mem::take(&mut self.resend_answer) {
+                    solver.outgoing(&mut self.sends);
+                    let header = ExchangeHeader {
+                        exchange: n - 1,
+                        time: self.last.time,
+                        count: self.sends.len() as u32,
+                        flags: 0,
+                    };
+                    self.send(header).map_err(|e| StepError::Peer(e.into()))?;
+                }
                 if self.receive(n, time, rec).map_err(ReceiveError::into_step)? {
                     rec.log(time, log_level::INFO, &format!("{} stopped at exchange {n}", self.peer_name))?;
                     return Ok(Flow::Stop(RunStatus::Completed));

@@ -22,8 +22,16 @@
 //! 4. at every `steps_per_frame`-th step: [`Solver::check`] (a blow-up
 //!    ends the run `unstable`), [`Solver::record_frame`], the state at
 //!    every `steps_per_state`-th step, then rest detection;
-//! 5. progress, at most every half second of wall time (and once as the
+//! 5. at every `steps_per_checkpoint`-th step, a checkpoint
+//!    ([`crate::checkpoint`]): the loop's own state, the exchange's and
+//!    [`Solver::checkpoint`];
+//! 6. progress, at most every half second of wall time (and once as the
 //!    loop begins).
+//!
+//! A run resumed from a checkpoint ([`Checkpoints::resumed`]) enters the
+//! loop as the interrupted run left it after step 5: no first frame (that
+//! run recorded it), the same counters, so that it records the same
+//! frames and states and ends in the same state, bit for bit.
 //!
 //! After the loop: the peer told the run stops ([`StepExchange::finish`]),
 //! a last frame unless the run failed or the last step was just recorded,
@@ -35,6 +43,7 @@ use std::time::Instant;
 
 use schemas::summary::{RunStatus, RunSummary};
 
+use crate::checkpoint::{CheckpointWriter, DriverState, ExchangeState};
 use crate::coupled::{Coupled, Exchange, ExchangeFailure, ExchangeFigures};
 use crate::record::{log_entry, log_level, ChannelId, RecordError, Recorder, RecorderBuilder};
 
@@ -179,6 +188,8 @@ pub struct Cadence {
     pub step_limit: u64,
     /// Record a state with the first frame.
     pub state_at_start: bool,
+    /// None: no checkpoints.
+    pub steps_per_checkpoint: Option<u64>,
 }
 
 impl Cadence {
@@ -186,6 +197,16 @@ impl Cadence {
     pub fn steps_in(interval: f64, dt: f64) -> u64 {
         ((interval / dt).round() as u64).max(1)
     }
+}
+
+/// A run's checkpoints: where they go, and the one it continues from.
+#[derive(Debug, Default)]
+pub struct Checkpoints {
+    /// Writes one every [`Cadence::steps_per_checkpoint`] steps.
+    pub writer: Option<CheckpointWriter>,
+    /// The loop's state in the checkpoint this run continues from (the
+    /// solver and the exchange were restored by their owners).
+    pub resumed: Option<DriverState>,
 }
 
 /// When a run ends at rest: `frames` recorded frames in a row with at most
@@ -233,6 +254,10 @@ pub trait Solver {
     fn record_frame(&mut self, rec: &mut Recording, clock: FrameClock) -> Result<FrameReport, Self::Error>;
     /// Records the full state (`/…/state`).
     fn record_state(&mut self, rec: &mut Recording) -> Result<(), Self::Error>;
+    /// The solver's part of a checkpoint: everything a run continued from
+    /// it needs to end in the same state, bit for bit, and to write the
+    /// same summary (the state, held loads, what the frames gathered).
+    fn checkpoint(&self) -> Vec<u8>;
     /// The run's summary.
     fn summary(&mut self, end: &RunEnd) -> RunSummary;
     /// The `/log` line that closes the run.
@@ -257,6 +282,8 @@ pub trait StepExchange<S: Solver> {
     fn finish(&mut self, solver: &mut S, status: RunStatus, failed: bool, rec: &mut Recording) -> Result<(), S::Error>;
     /// Totals so far.
     fn figures(&self) -> ExchangeFigures;
+    /// Its position, for a checkpoint.
+    fn state(&self) -> ExchangeState;
 }
 
 impl<C> StepExchange<C> for Exchange<'_, C::Sends, C::Receives>
@@ -279,6 +306,9 @@ where
     fn figures(&self) -> ExchangeFigures {
         Exchange::figures(self)
     }
+    fn state(&self) -> ExchangeState {
+        Exchange::state(self)
+    }
 }
 
 /// Runs `solver` to its step limit, to rest, to a stop or a failure (see
@@ -291,25 +321,36 @@ pub fn drive<'x, S: Solver>(
     rec: &mut Recording,
     cadence: Cadence,
     rest: RestRule,
+    checkpoints: &mut Checkpoints,
     stop: &AtomicBool,
     progress: &mut dyn FnMut(f64, u64),
     summary_path: &Path,
 ) -> Result<RunSummary, S::Error> {
     let mut status = RunStatus::Completed;
     let mut failure: Option<S::Error> = None;
-    let mut work = 0.0_f64;
     let started = Instant::now();
-    let mut last_frame = (Instant::now(), 0.0_f64);
     let mut last_progress = Instant::now();
-    let clock0 = FrameClock { rate: 0.0, wall: 0.0, exchange: exchange.as_deref().map(|x| x.figures()) };
-    record(rec, |rec| solver.record_frame(rec, clock0))?;
-    if cadence.state_at_start {
-        record(rec, |rec| solver.record_state(rec))?;
-    }
-    let mut last_recorded = solver.steps();
-    let mut last_state = cadence.state_at_start.then(|| solver.steps());
-    let mut frames_at_rest = 0;
-    let mut has_moved = false;
+    let DriverState { mut work, mut last_recorded, mut last_state, mut frames_at_rest, mut has_moved, .. } =
+        match checkpoints.resumed {
+            Some(state) => state,
+            None => {
+                let clock0 = FrameClock { rate: 0.0, wall: 0.0, exchange: exchange.as_deref().map(|x| x.figures()) };
+                record(rec, |rec| solver.record_frame(rec, clock0))?;
+                if cadence.state_at_start {
+                    record(rec, |rec| solver.record_state(rec))?;
+                }
+                DriverState {
+                    steps: solver.steps(),
+                    time: solver.time(),
+                    last_recorded: solver.steps(),
+                    last_state: cadence.state_at_start.then(|| solver.steps()),
+                    frames_at_rest: 0,
+                    has_moved: false,
+                    work: 0.0,
+                }
+            }
+        };
+    let mut last_frame = (Instant::now(), work);
     // At once, not after the first half second: a supervisor learns that
     // the run loop (and its recording) has begun.
     progress(solver.time(), solver.steps());
@@ -367,6 +408,16 @@ pub fn drive<'x, S: Solver>(
                     rec.log(t, log_level::INFO, "at rest")?;
                     break;
                 }
+            }
+        }
+        if let (Some(writer), Some(every)) = (checkpoints.writer.as_mut(), cadence.steps_per_checkpoint) {
+            if steps.is_multiple_of(every) {
+                let state = DriverState { steps, time: t, last_recorded, last_state, frames_at_rest, has_moved, work };
+                let position = exchange.as_deref().map(|x| x.state());
+                if let Some(r) = rec.recorder() {
+                    r.sync()?;
+                }
+                writer.write(state, position, solver.checkpoint()).map_err(RecordError::from)?;
             }
         }
         if last_progress.elapsed().as_secs_f64() > 0.5 {
@@ -556,6 +607,9 @@ mod tests {
             self.states.push(self.steps);
             Ok(())
         }
+        fn checkpoint(&self) -> Vec<u8> {
+            self.steps.to_le_bytes().to_vec()
+        }
         fn summary(&mut self, end: &RunEnd) -> RunSummary {
             RunSummary {
                 scene: "toy".into(),
@@ -593,8 +647,13 @@ mod tests {
         }
     }
 
-    const CADENCE: Cadence =
-        Cadence { steps_per_frame: 10, steps_per_state: Some(30), step_limit: 95, state_at_start: true };
+    const CADENCE: Cadence = Cadence {
+        steps_per_frame: 10,
+        steps_per_state: Some(30),
+        step_limit: 95,
+        state_at_start: true,
+        steps_per_checkpoint: None,
+    };
     const REST: RestRule = RestRule { stop_at_rest: true, fraction: 0.01, frames: REST_FRAMES };
 
     fn run(toy: &mut Toy<'_>, stop: &AtomicBool, rest: RestRule) -> (Result<RunSummary, ToyError>, serde_json::Value) {
@@ -613,7 +672,8 @@ mod tests {
         let path = dir.join("summary.json");
         let _ = std::fs::remove_file(&path);
         let mut rec = Recording::off("toy");
-        let result = drive(toy, exchange, &mut rec, CADENCE, rest, stop, &mut |_, _| {}, &path);
+        let mut checkpoints = Checkpoints::default();
+        let result = drive(toy, exchange, &mut rec, CADENCE, rest, &mut checkpoints, stop, &mut |_, _| {}, &path);
         let written = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary written")).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
         (result, written)

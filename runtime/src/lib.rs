@@ -10,6 +10,7 @@
 //! The vocabulary these speak (scenes, messages, topics, summaries) is the
 //! `schemas` crate, which depends on none of this.
 
+pub mod checkpoint;
 pub mod coupled;
 pub mod driver;
 pub mod exchange;

@@ -161,6 +161,12 @@ pub struct RunArgs {
     /// Skip the MCAP recording (to measure what recording costs).
     #[arg(long)]
     pub no_record: bool,
+    /// Continue from this checkpoint (`OUT/checkpoints/<process>-<step>.ckpt`,
+    /// written every `output.checkpoint_interval`) instead of starting the
+    /// scene afresh; the run ends as the uninterrupted one would, bit for
+    /// bit. `coupler run --resume DIR` picks it for every process.
+    #[arg(long, value_name = "CHECKPOINT")]
+    pub resume: Option<PathBuf>,
     /// Machine-readable progress on stdout, one JSON object per line (used by `coupler`).
     #[arg(long)]
     pub progress_json: bool,
@@ -247,6 +253,8 @@ pub struct RunOptions {
     pub out_dir: PathBuf,
     /// Record to MCAP (off only for benchmarks measuring the recording cost).
     pub record: bool,
+    /// The checkpoint to continue from (`--resume`).
+    pub resume: Option<PathBuf>,
 }
 
 /// Loads and checks the scene a solver was given; `unfit` names why this

@@ -26,8 +26,19 @@ use schemas::topics::metadata;
 pub struct ChannelId(u16);
 
 enum Command {
-    Message { channel: u16, log_time: u64, data: Vec<u8> },
-    Metadata { name: String, entries: BTreeMap<String, String> },
+    Message {
+        channel: u16,
+        log_time: u64,
+        data: Vec<u8>,
+    },
+    Metadata {
+        name: String,
+        entries: BTreeMap<String, String>,
+    },
+    /// Close the current chunk and hand it to the OS, then answer.
+    Flush {
+        done: SyncSender<()>,
+    },
 }
 
 pub struct RecorderBuilder {
@@ -43,6 +54,9 @@ pub enum RecordError {
     Write { path: PathBuf, source: mcap::McapError },
     #[error("the recorder thread stopped early: {0}")]
     Stopped(String),
+    /// A checkpoint, the recording's companion for resuming, failed.
+    #[error(transparent)]
+    Checkpoint(#[from] crate::checkpoint::CheckpointError),
 }
 
 impl RecorderBuilder {
@@ -153,6 +167,11 @@ fn writer_loop(
             Command::Metadata { name, entries } => {
                 writer.write_metadata(&mcap::records::Metadata { name, metadata: entries }).map_err(werr)?;
             }
+            Command::Flush { done } => {
+                writer.flush().map_err(werr)?;
+                last_flush = std::time::Instant::now();
+                let _ = done.send(());
+            }
         }
     }
     writer.finish().map_err(werr)?;
@@ -207,6 +226,15 @@ impl Recorder {
 
     pub fn metadata(&mut self, name: &str, entries: BTreeMap<String, String>) -> Result<(), RecordError> {
         self.send(Command::Metadata { name: name.into(), entries })
+    }
+
+    /// Returns once everything logged so far is in the file as complete
+    /// chunks (a checkpoint is written only after what was recorded up to
+    /// it is on disk, so a resumed run's recording has no gap).
+    pub fn sync(&mut self) -> Result<(), RecordError> {
+        let (done, wait) = sync_channel(1);
+        self.send(Command::Flush { done })?;
+        wait.recv().map_err(|_| self.join_error())
     }
 
     /// Records the scene as run (metadata `scene`, key `toml`).

@@ -872,6 +872,13 @@ pub struct OutputSpec {
     /// Interval between full-precision state frames, s. Default: 5 × `record_interval`.
     #[serde(default)]
     pub state_interval: Option<f64>,
+    /// Interval between checkpoints, s of simulated time: each process's
+    /// full state on disk (`checkpoints/` in the output directory), from
+    /// which `coupler run --resume DIR` continues a killed run bit for bit
+    /// (docs/RELIABILITY.md). Rounded to whole steps (coupled: whole
+    /// exchanges). Default: none.
+    #[serde(default)]
+    pub checkpoint_interval: Option<f64>,
     /// End early, after all gates are released, once at most `rest_fraction`
     /// of the grain mass moves faster than `rest_speed` on three recorded
     /// frames in a row. Default true.
@@ -1318,6 +1325,9 @@ fn check_run_tables(v: &mut Validator, spec: &SceneSpec, mpm: bool) {
     let o = &spec.output;
     v.positive("output.end_time", o.end_time);
     v.positive("output.record_interval", o.record_interval);
+    if let Some(s) = o.checkpoint_interval {
+        v.positive("output.checkpoint_interval", s);
+    }
     if let Some(s) = o.state_interval {
         v.positive("output.state_interval", s);
     }

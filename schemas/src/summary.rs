@@ -146,8 +146,12 @@ pub struct RunExchange {
 
 /// Reads a number back that serde_json wrote as `null` (it writes NaN and
 /// ±∞ so: a runout the LBM does not measure, a porosity of an explicit
-/// packing) as NaN, so that a summary reads back into its type.
+/// packing) as NaN, so that a summary reads back into its type. Binary
+/// formats (bincode: checkpoints) keep NaN as it is and are read as written.
 pub fn nan_if_null<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    if !d.is_human_readable() {
+        return f64::deserialize(d);
+    }
     Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 

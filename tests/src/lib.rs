@@ -124,7 +124,7 @@ pub fn run_coupled_in_process(
     out: &Path,
 ) -> (schemas::summary::RunSummary, schemas::summary::RunSummary) {
     let scene = schemas::Scene::load(&repo_root().join(scene_path), set).expect("scene loads");
-    let opts = runtime::process::RunOptions { out_dir: out.to_path_buf(), record: true };
+    let opts = runtime::process::RunOptions { out_dir: out.to_path_buf(), record: true, resume: None };
     let stop = std::sync::atomic::AtomicBool::new(false);
     let (dem_end, lbm_end) = runtime::exchange::memory_pair();
     std::thread::scope(|s| {

@@ -9,6 +9,7 @@
 //! does not depend on the thread count.
 
 use schemas::scene::ForcingGain;
+use serde::{Deserialize, Serialize};
 
 use super::{ConfigError, Fluid};
 use crate::real::Real;
@@ -45,7 +46,7 @@ pub fn uses_effective_tau(rule: ForcingGain) -> bool {
 
 /// A cell to be pushed toward a target velocity in the next steps
 /// (lattice units).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ForcedCell {
     /// Cell index, x fastest: `(k * ny + j) * nx + i`.
     pub cell: usize,
@@ -60,7 +61,7 @@ pub struct ForcedCell {
 ///
 /// One cache line each (64 bytes, aligned): the coupling reads them by
 /// grain, scattered, and an entry split over two lines cost two misses.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[repr(C, align(64))]
 pub struct AppliedForce {
     /// Cell index.
@@ -76,6 +77,17 @@ pub struct AppliedForce {
     /// change over a step, summed over a grain's cells, is the inertia of
     /// the liquid the grain holds (coupling.rs, step 6).
     pub held: [f64; 3],
+}
+
+/// The direct forcing as a checkpoint keeps it: the list in force and what
+/// the last step applied (the next step reads velocities corrected by it:
+/// the gas populations rebuilt at the interface, the conversions).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ForcingMemory {
+    cells: Vec<ForcedCell>,
+    rows: Vec<usize>,
+    applied: Vec<AppliedForce>,
+    applied_rows: Vec<usize>,
 }
 
 /// The forcing list and its per-step output, reused (no allocation once grown).
@@ -265,6 +277,24 @@ impl<T: Real> Fluid<T> {
     /// cleared): a list is still the one installed while this is unchanged.
     pub fn forcing_version(&self) -> u64 {
         self.scratch.forcing.version
+    }
+
+    /// The forcing for a checkpoint ([`ForcingMemory`]).
+    pub fn forcing_memory(&self) -> ForcingMemory {
+        let f = &self.scratch.forcing;
+        ForcingMemory {
+            cells: f.cells.clone(),
+            rows: f.rows.clone(),
+            applied: f.applied.clone(),
+            applied_rows: f.applied_rows.clone(),
+        }
+    }
+
+    /// Continues with a checkpoint's forcing, as the fluid that wrote it had it.
+    pub fn restore_forcing_memory(&mut self, memory: ForcingMemory) {
+        let f = &mut self.scratch.forcing;
+        f.version += 1;
+        (f.cells, f.rows, f.applied, f.applied_rows) = (memory.cells, memory.rows, memory.applied, memory.applied_rows);
     }
 
     /// The cells forced from the next step on.

@@ -839,6 +839,12 @@ impl<T: Real> Fluid<T> {
     pub fn returned_excess(&self) -> f64 {
         self.scratch.returned_mass
     }
+
+    /// Continues the two diagnostics above from a checkpoint's values.
+    pub fn restore_returned_excess(&mut self, returns: u64, mass: f64) {
+        self.scratch.pending_returned = returns;
+        self.scratch.returned_mass = mass;
+    }
 }
 
 /// Merges two sequences of (cell, value), each ascending by cell, into

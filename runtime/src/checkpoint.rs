@@ -1,0 +1,382 @@
+//! Checkpoints: a process's full state at a step, on disk, so that a run
+//! killed at minute 14 continues from its last checkpoint instead of
+//! starting over (docs/RELIABILITY.md, "Resume").
+//!
+//! A checkpoint holds the driver's loop state ([`DriverState`]), the
+//! exchange's position when coupled ([`ExchangeState`]) and the solver's
+//! own bytes ([`crate::driver::Solver::checkpoint`]: its state and what its
+//! summary gathers). A run continued from it ends in the same state, bit
+//! for bit, as the run never interrupted: checkpoints only read the state.
+//!
+//! Files are `DIR/checkpoints/<process>-<step>.ckpt`:
+//!
+//! ```text
+//! b"SGFCKPT1"   magic
+//! u64 LE        length of the body
+//! body          bincode (standard) of CheckpointFile
+//! u64 LE        hash of the body (check_hash)
+//! ```
+//!
+//! Written atomically: into `<name>.partial`, synced, renamed, the folder
+//! synced; a process killed while writing one leaves the previous
+//! checkpoints as they were and a `.partial` file that is ignored. The
+//! newest [`KEEP`] of a process are kept.
+
+use std::fs::File;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+const MAGIC: &[u8; 8] = b"SGFCKPT1";
+
+/// Checkpoints kept per process: the newest, and the one before it in case
+/// the newest is found damaged.
+pub const KEEP: usize = 2;
+
+/// The folder of a run's checkpoints.
+pub fn folder(out_dir: &Path) -> PathBuf {
+    out_dir.join("checkpoints")
+}
+
+/// The run loop's own state at a checkpoint ([`crate::driver::drive`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct DriverState {
+    /// The solver's step count.
+    pub steps: u64,
+    /// Simulated time, s.
+    pub time: f64,
+    /// The last step a frame was recorded at.
+    pub last_recorded: u64,
+    /// The last step a state was recorded at.
+    pub last_state: Option<u64>,
+    /// Recorded frames in a row at rest.
+    pub frames_at_rest: u32,
+    /// Whether the mass has moved yet (rest only counts after).
+    pub has_moved: bool,
+    /// Work units done so far.
+    pub work: f64,
+}
+
+/// The exchange's position at a checkpoint ([`crate::coupled::Exchange`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ExchangeState {
+    /// Index of the next exchange.
+    pub next: u64,
+    /// Index and time, s, of the last message received.
+    pub last_exchange: u64,
+    pub last_time: f64,
+    /// Exchanges completed.
+    pub exchanges: u64,
+}
+
+/// What a checkpoint file holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointFile {
+    /// The process that wrote it ("dem_proc").
+    pub process: String,
+    /// [`scene_hash`] of the scene it ran.
+    pub scene_hash: u64,
+    pub driver: DriverState,
+    pub exchange: Option<ExchangeState>,
+    /// The solver's own bytes.
+    pub solver: Vec<u8>,
+}
+
+/// Why a checkpoint cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    #[error("cannot write checkpoint {path}: {source} (is the disk full? set output.checkpoint_interval larger, or free space)")]
+    Write { path: PathBuf, source: std::io::Error },
+    #[error("cannot read checkpoint {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("{path} is not a usable checkpoint: {why}")]
+    Damaged { path: PathBuf, why: String },
+    #[error("{path} was written by {found}, not {wanted}")]
+    WrongProcess { path: PathBuf, found: String, wanted: String },
+    #[error("{path} is of a different scene: a run resumes only under the scene it started with (its [output] table may change)")]
+    WrongScene { path: PathBuf },
+}
+
+/// A hash of the scene's physics: its TOML with the `[output]` table left
+/// out, so that a resumed run may record differently or run longer, but
+/// not continue under other physics.
+pub fn scene_hash(scene: &schemas::Scene) -> u64 {
+    let mut table: toml::Table = scene.to_toml().parse().expect("a scene's TOML parses");
+    table.remove("output");
+    check_hash(table.to_string().as_bytes())
+}
+
+/// A 64-bit hash of `bytes` (FNV-1a over 8-byte words, then the tail):
+/// to tell a damaged file, not to resist an adversary.
+pub fn check_hash(bytes: &[u8]) -> u64 {
+    const PRIME: u64 = 0x0000_0100_0000_01b3;
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325 ^ bytes.len() as u64;
+    let mut words = bytes.chunks_exact(8);
+    for w in &mut words {
+        h = (h ^ u64::from_le_bytes(w.try_into().expect("8 bytes"))).wrapping_mul(PRIME);
+        h ^= h >> 29;
+    }
+    for &b in words.remainder() {
+        h = (h ^ b as u64).wrapping_mul(PRIME);
+    }
+    h
+}
+
+/// Writes a process's checkpoints into a run's folder.
+#[derive(Debug, Clone)]
+pub struct CheckpointWriter {
+    dir: PathBuf,
+    process: &'static str,
+    scene_hash: u64,
+    /// Checkpoints written by this writer.
+    pub written: u64,
+    /// Bytes of the last one.
+    pub last_bytes: u64,
+    /// Wall seconds spent writing.
+    pub seconds: f64,
+}
+
+impl CheckpointWriter {
+    /// Checkpoints of `process` under `out_dir/checkpoints`.
+    pub fn new(out_dir: &Path, process: &'static str, scene: &schemas::Scene) -> Result<Self, CheckpointError> {
+        let dir = folder(out_dir);
+        std::fs::create_dir_all(&dir).map_err(|source| CheckpointError::Write { path: dir.clone(), source })?;
+        Ok(Self { dir, process, scene_hash: scene_hash(scene), written: 0, last_bytes: 0, seconds: 0.0 })
+    }
+
+    /// Writes one atomically, then removes this process's older ones beyond [`KEEP`].
+    pub fn write(
+        &mut self,
+        driver: DriverState,
+        exchange: Option<ExchangeState>,
+        solver: Vec<u8>,
+    ) -> Result<PathBuf, CheckpointError> {
+        let started = std::time::Instant::now();
+        let file =
+            CheckpointFile { process: self.process.to_string(), scene_hash: self.scene_hash, driver, exchange, solver };
+        let body = bincode::serde::encode_to_vec(&file, bincode::config::standard()).expect("a checkpoint encodes");
+        let path = self.dir.join(format!("{}-{:014}.ckpt", self.process, driver.steps));
+        let partial = path.with_extension("ckpt.partial");
+        let werr = |source| CheckpointError::Write { path: path.clone(), source };
+        let mut f = File::create(&partial).map_err(werr)?;
+        f.write_all(MAGIC).map_err(werr)?;
+        f.write_all(&(body.len() as u64).to_le_bytes()).map_err(werr)?;
+        f.write_all(&body).map_err(werr)?;
+        f.write_all(&check_hash(&body).to_le_bytes()).map_err(werr)?;
+        f.sync_all().map_err(werr)?;
+        drop(f);
+        std::fs::rename(&partial, &path).map_err(werr)?;
+        // The rename itself is durable only once the folder is synced.
+        if let Ok(d) = File::open(&self.dir) {
+            let _ = d.sync_all();
+        }
+        for old in list(&self.dir, self.process).into_iter().rev().skip(KEEP) {
+            let _ = std::fs::remove_file(old.1);
+        }
+        self.written += 1;
+        self.last_bytes = body.len() as u64 + 24;
+        self.seconds += started.elapsed().as_secs_f64();
+        Ok(path)
+    }
+}
+
+/// The checkpoint files of `process` in `dir`, by step, oldest first
+/// (names only; [`read`] checks the content).
+pub fn list(dir: &Path, process: &str) -> Vec<(u64, PathBuf)> {
+    let prefix = format!("{process}-");
+    let mut found: Vec<(u64, PathBuf)> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().into_string().ok()?;
+            let step = name.strip_prefix(&prefix)?.strip_suffix(".ckpt")?.parse().ok()?;
+            Some((step, e.path()))
+        })
+        .collect();
+    found.sort();
+    found
+}
+
+/// Reads and checks a checkpoint of `process` for `scene`.
+pub fn read(path: &Path, process: &str, scene: &schemas::Scene) -> Result<CheckpointFile, CheckpointError> {
+    let file = read_unchecked(path)?;
+    if file.process != process {
+        return Err(CheckpointError::WrongProcess {
+            path: path.to_path_buf(),
+            found: file.process,
+            wanted: process.to_string(),
+        });
+    }
+    if file.scene_hash != scene_hash(scene) {
+        return Err(CheckpointError::WrongScene { path: path.to_path_buf() });
+    }
+    Ok(file)
+}
+
+/// Reads a checkpoint and checks its framing and hash only.
+pub fn read_unchecked(path: &Path) -> Result<CheckpointFile, CheckpointError> {
+    let bytes = std::fs::read(path).map_err(|source| CheckpointError::Read { path: path.to_path_buf(), source })?;
+    decode(&bytes).map_err(|why| CheckpointError::Damaged { path: path.to_path_buf(), why })
+}
+
+/// Decodes the bytes of a checkpoint file, checking magic, length and hash.
+pub fn decode(bytes: &[u8]) -> Result<CheckpointFile, String> {
+    if bytes.len() < 24 || &bytes[..8] != MAGIC {
+        return Err("no checkpoint header (not a checkpoint, or cut before its first bytes)".into());
+    }
+    let len = u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes"));
+    let end = 16u64.checked_add(len).filter(|&e| e.checked_add(8) == Some(bytes.len() as u64));
+    let Some(end) = end else {
+        return Err(format!(
+            "{} bytes where the header announces {} (cut short while written?)",
+            bytes.len(),
+            len + 24
+        ));
+    };
+    let body = &bytes[16..end as usize];
+    let stored = u64::from_le_bytes(bytes[end as usize..].try_into().expect("8 bytes"));
+    if check_hash(body) != stored {
+        return Err("its content does not match its hash (damaged on disk)".into());
+    }
+    bincode::serde::decode_from_slice(body, bincode::config::standard())
+        .map(|(f, _)| f)
+        .map_err(|e| format!("its content does not decode ({e})"))
+}
+
+/// The newest usable checkpoint of each of `processes` at one and the same
+/// moment (the same exchange when coupled, else the same step time), with
+/// why newer ones were passed over. None when there is no common one.
+pub fn latest_common(
+    dir: &Path,
+    processes: &[&str],
+    scene: &schemas::Scene,
+) -> (Option<Vec<(PathBuf, CheckpointFile)>>, Vec<String>) {
+    let mut skipped = Vec::new();
+    let mut usable: Vec<Vec<(PathBuf, CheckpointFile)>> = Vec::new();
+    for p in processes {
+        let mut ok = Vec::new();
+        for (_, path) in list(dir, p).into_iter().rev() {
+            match read(&path, p, scene) {
+                Ok(f) => ok.push((path, f)),
+                Err(e) => skipped.push(e.to_string()),
+            }
+        }
+        usable.push(ok);
+    }
+    let moment = |f: &CheckpointFile| match f.exchange {
+        Some(x) => (1u8, x.next as i64),
+        None => (0u8, (f.driver.time * 1e9).round() as i64),
+    };
+    let Some(first) = usable.first() else { return (None, skipped) };
+    for (path, file) in first {
+        let m = moment(file);
+        let mut set = vec![(path.clone(), file.clone())];
+        for others in &usable[1..] {
+            match others.iter().find(|(_, f)| moment(f) == m) {
+                Some((p, f)) => set.push((p.clone(), f.clone())),
+                None => break,
+            }
+        }
+        if set.len() == processes.len() {
+            return (Some(set), skipped);
+        }
+    }
+    (None, skipped)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scene() -> schemas::Scene {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/validation/minimal_dry_column.toml");
+        schemas::Scene::load(&path, &[]).expect("scene loads")
+    }
+
+    fn driver(steps: u64) -> DriverState {
+        DriverState {
+            steps,
+            time: steps as f64 * 1e-5,
+            last_recorded: steps,
+            last_state: None,
+            frames_at_rest: 0,
+            has_moved: true,
+            work: 1.0,
+        }
+    }
+
+    #[test]
+    fn written_checkpoints_read_back_and_only_the_newest_are_kept() {
+        let dir = tempdir("kept");
+        let scene = scene();
+        let mut w = CheckpointWriter::new(&dir, "dem_proc", &scene).unwrap();
+        for steps in [100, 200, 300] {
+            w.write(driver(steps), None, vec![steps as u8; 1000]).unwrap();
+        }
+        let files = list(&folder(&dir), "dem_proc");
+        assert_eq!(files.iter().map(|f| f.0).collect::<Vec<_>>(), vec![200, 300]);
+        let back = read(&files[1].1, "dem_proc", &scene).unwrap();
+        assert_eq!(back.driver, driver(300));
+        assert_eq!(back.solver, vec![44u8; 1000]);
+        assert!(matches!(read(&files[1].1, "lbm_proc", &scene), Err(CheckpointError::WrongProcess { .. })));
+    }
+
+    #[test]
+    fn a_cut_or_flipped_file_is_refused_and_the_previous_one_used() {
+        let dir = tempdir("damaged");
+        let scene = scene();
+        let mut w = CheckpointWriter::new(&dir, "mpm_proc", &scene).unwrap();
+        w.write(driver(10), None, vec![1; 4096]).unwrap();
+        let newest = w.write(driver(20), None, vec![2; 4096]).unwrap();
+        let bytes = std::fs::read(&newest).unwrap();
+        // A kill while writing leaves a .partial file; a crash of the disk a cut one.
+        std::fs::write(folder(&dir).join("mpm_proc-00000000000030.ckpt.partial"), &bytes[..100]).unwrap();
+        std::fs::write(&newest, &bytes[..bytes.len() - 1]).unwrap();
+        let (set, skipped) = latest_common(&folder(&dir), &["mpm_proc"], &scene);
+        assert_eq!(set.unwrap()[0].1.driver.steps, 10);
+        assert!(skipped[0].contains("cut short"), "{skipped:?}");
+        let mut flipped = bytes.clone();
+        flipped[200] ^= 1;
+        std::fs::write(&newest, &flipped).unwrap();
+        let (_, skipped) = latest_common(&folder(&dir), &["mpm_proc"], &scene);
+        assert!(skipped[0].contains("hash"), "{skipped:?}");
+    }
+
+    #[test]
+    fn a_changed_scene_is_refused_but_its_output_may_change() {
+        let dir = tempdir("scene");
+        let scene = scene();
+        let mut w = CheckpointWriter::new(&dir, "dem_proc", &scene).unwrap();
+        let path = w.write(driver(5), None, Vec::new()).unwrap();
+        let path_to = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/validation/minimal_dry_column.toml");
+        let longer = schemas::Scene::load(&path_to, &["output.end_time=9.0".into()]).unwrap();
+        assert!(read(&path, "dem_proc", &longer).is_ok());
+        let other = schemas::Scene::load(&path_to, &["domain.gravity=[0.0, 0.0, -9.0]".into()]).unwrap();
+        assert!(matches!(read(&path, "dem_proc", &other), Err(CheckpointError::WrongScene { .. })));
+    }
+
+    #[test]
+    fn coupled_processes_resume_from_the_newest_exchange_both_reached() {
+        let dir = tempdir("common");
+        let scene = scene();
+        let x = |next| Some(ExchangeState { next, last_exchange: next - 1, last_time: 0.0, exchanges: next });
+        let mut dem = CheckpointWriter::new(&dir, "dem_proc", &scene).unwrap();
+        let mut lbm = CheckpointWriter::new(&dir, "lbm_proc", &scene).unwrap();
+        dem.write(driver(570), x(10), Vec::new()).unwrap();
+        lbm.write(driver(10), x(10), Vec::new()).unwrap();
+        // The DEM got one further before the kill.
+        dem.write(driver(1140), x(20), Vec::new()).unwrap();
+        let (set, _) = latest_common(&folder(&dir), &["dem_proc", "lbm_proc"], &scene);
+        let set = set.unwrap();
+        assert_eq!((set[0].1.driver.steps, set[1].1.driver.steps), (570, 10));
+    }
+
+    fn tempdir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("sgf-ckpt-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+}
