@@ -330,6 +330,14 @@ fn prepare_output(
             }
         }
     }
+    if !resuming {
+        // Another run's checkpoints must not be resumed as this one's.
+        let checkpoints = runtime::checkpoint::folder(out);
+        if checkpoints.exists() {
+            std::fs::remove_dir_all(&checkpoints)
+                .map_err(|e| format!("cannot remove the previous run's {}: {e}", checkpoints.display()))?;
+        }
+    }
     let mut stale = vec!["run.mcap".to_string(), "summary.json".into()];
     for (_, short) in solvers {
         stale.push(format!("{short}.mcap"));

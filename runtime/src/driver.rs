@@ -715,6 +715,43 @@ mod tests {
         assert_eq!((r.unwrap().status, toy.steps), (RunStatus::Completed, 95));
     }
 
+    /// A run resumed from a checkpoint records what the straight run
+    /// records after it and ends where it ends: here at rest, which takes
+    /// the quiet frames counted before the checkpoint (restored, the run
+    /// stops at 70 as the straight one; counted afresh it would go to 80).
+    #[test]
+    fn a_resumed_loop_continues_the_straight_one() {
+        let scene_path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/validation/minimal_dry_column.toml");
+        let scene = schemas::Scene::load(&scene_path, &[]).unwrap();
+        let dir = std::env::temp_dir().join(format!("sgf-driver-resume-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let speed = |s| if (30..=40).contains(&s) { 0.5 } else { 0.0 };
+        let cadence = Cadence { steps_per_checkpoint: Some(20), ..CADENCE };
+        let summary = dir.join("summary.json");
+        let mut go = |toy: &mut Toy<'_>, checkpoints: &mut Checkpoints| {
+            let mut rec = Recording::off("toy");
+            let stop = AtomicBool::new(false);
+            drive(toy, None, &mut rec, cadence, REST, checkpoints, &stop, &mut |_, _| {}, &summary).unwrap()
+        };
+        let mut straight = Toy::new(speed);
+        let writer = crate::checkpoint::CheckpointWriter::new(&dir, "toy", &scene).unwrap();
+        let s = go(&mut straight, &mut Checkpoints { writer: Some(writer), resumed: None });
+        assert_eq!((s.status, straight.steps), (RunStatus::AtRest, 70));
+        let files = crate::checkpoint::list(&crate::checkpoint::folder(&dir), "toy");
+        assert_eq!(files.iter().map(|f| f.0).collect::<Vec<_>>(), [40, 60], "checkpoints every 20 steps, two kept");
+        let file = crate::checkpoint::read(&files[1].1, "toy", &scene).unwrap();
+        assert_eq!(file.solver, 60u64.to_le_bytes());
+        assert_eq!((file.driver.frames_at_rest, file.driver.has_moved), (2, true));
+        let mut resumed = Toy::new(speed);
+        resumed.steps = 60;
+        let r = go(&mut resumed, &mut Checkpoints { writer: None, resumed: Some(file.driver) });
+        assert_eq!((r.status, resumed.steps, r.runout), (s.status, straight.steps, s.runout));
+        assert_eq!(resumed.frames, [70], "no first frame: the interrupted run recorded 60");
+        assert_eq!(resumed.states, [70]);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     /// The stop flag ends the run after the step that saw it and still
     /// records a last frame and state.
     #[test]

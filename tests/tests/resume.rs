@@ -1,0 +1,185 @@
+//! Resume (issue 23): a run killed with SIGKILL after its first checkpoints
+//! and continued with `coupler run --resume DIR` ends as the run never
+//! interrupted, bit for bit: every recorded state, frame and exchanged
+//! message the same bytes at the same times, and the same summary. One run
+//! per method: the dry DEM (grain contacts and wall springs), the fluid
+//! alone (free surface), the two-phase MPM, and the coupled DEM–LBM under
+//! both schedules (the concurrent one has an answer in flight at every
+//! checkpoint, which the LBM sends again).
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use integration_tests::{binary, find_process, repo_root, scratch_dir};
+use schemas::summary::RunSummary;
+
+/// Topics whose messages hold wall-clock figures (rates, wait times) or
+/// the processes' own log lines: all others must match byte for byte.
+const WALL_CLOCK_TOPICS: [&str; 6] =
+    ["/log", "/dem/metrics", "/lbm/metrics", "/mpm/metrics", "/dem/coupling", "/lbm/coupling"];
+
+fn coupler(out: &Path, args: &[&str]) -> Command {
+    let mut cmd = Command::new(binary("coupler"));
+    cmd.current_dir(repo_root()).env("SGF_CACHE_DIR", out.join("cache")).args(args).arg("--quiet");
+    cmd
+}
+
+fn run_straight(name: &str, scene: &str, set: &[String]) -> PathBuf {
+    let out = scratch_dir(name);
+    let mut cmd = coupler(&out, &["run", scene]);
+    for s in set {
+        cmd.arg("--set").arg(s);
+    }
+    let log = std::fs::File::create(out.with_extension("log")).expect("log file");
+    let status = cmd.arg("--out").arg(&out).stderr(Stdio::from(log)).status().expect("coupler starts");
+    assert!(status.success(), "{name}: the uninterrupted run failed: {status}");
+    out
+}
+
+/// Starts the run, waits until every process has written a checkpoint,
+/// kills `victim` with SIGKILL and waits for the coupler to end.
+fn run_killed(name: &str, scene: &str, set: &[String], processes: &[&str], victim: &str) -> PathBuf {
+    let out = scratch_dir(name);
+    let mut cmd = coupler(&out, &["run", scene]);
+    for s in set {
+        cmd.arg("--set").arg(s);
+    }
+    let log = std::fs::File::create(out.with_extension("log")).expect("log file");
+    let mut child: Child = cmd.arg("--out").arg(&out).stderr(Stdio::from(log)).spawn().expect("coupler starts");
+    let folder = out.join("checkpoints");
+    let started = Instant::now();
+    let ready = || {
+        processes.iter().all(|p| {
+            std::fs::read_dir(&folder).into_iter().flatten().flatten().any(|e| {
+                let n = e.file_name().to_string_lossy().to_string();
+                n.starts_with(&format!("{p}-")) && n.ends_with(".ckpt")
+            })
+        })
+    };
+    while !ready() {
+        assert!(child.try_wait().expect("wait").is_none(), "{name}: the run ended before its first checkpoint");
+        assert!(started.elapsed() < Duration::from_secs(120), "{name}: no checkpoint after 120 s");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let pid = find_process(victim, &out).expect("the victim runs");
+    // SAFETY: signalling a process this test started (through the coupler).
+    unsafe { libc::kill(pid, libc::SIGKILL) };
+    let status = child.wait().expect("coupler ends");
+    assert!(!status.success(), "{name}: the run must have been killed, not completed ({status})");
+    out
+}
+
+fn resume(out: &Path) {
+    let log = std::fs::File::create(out.with_extension("resume.log")).expect("log file");
+    let dir = out.to_str().expect("a UTF-8 path");
+    let status = coupler(out, &["run", "--resume", dir]).stderr(Stdio::from(log)).status().expect("coupler");
+    let text = std::fs::read_to_string(out.with_extension("resume.log")).unwrap_or_default();
+    assert!(status.success(), "coupler run --resume {} failed: {status}\n{text}", out.display());
+    assert!(text.contains("continuing from t ="), "the resume names its checkpoint:\n{text}");
+}
+
+/// Every message of the recording by topic: (log time, bytes).
+fn messages(path: &Path) -> std::collections::BTreeMap<String, Vec<(u64, Vec<u8>)>> {
+    let bytes = std::fs::read(path).expect("recording exists");
+    let mut out = std::collections::BTreeMap::<String, Vec<(u64, Vec<u8>)>>::new();
+    for m in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
+        let m = m.expect("a complete recording");
+        out.entry(m.channel.topic.clone()).or_default().push((m.log_time, m.data.into_owned()));
+    }
+    out
+}
+
+fn summary(out: &Path) -> RunSummary {
+    let text = std::fs::read_to_string(out.join("summary.json")).expect("summary.json");
+    serde_json::from_str(&text).expect("a run summary")
+}
+
+fn assert_same_run(straight: &Path, resumed: &Path) {
+    let (a, b) = (messages(&straight.join("run.mcap")), messages(&resumed.join("run.mcap")));
+    let topics: Vec<&String> = a.keys().filter(|t| !WALL_CLOCK_TOPICS.contains(&t.as_str())).collect();
+    assert!(topics.iter().any(|t| t.ends_with("/state")), "the recording holds states: {topics:?}");
+    for t in topics {
+        let (x, y) = (&a[t], b.get(t).unwrap_or_else(|| panic!("the resumed recording lacks {t}")));
+        assert_eq!(x.len(), y.len(), "{t}: {} messages straight, {} resumed", x.len(), y.len());
+        for (k, (m, n)) in x.iter().zip(y).enumerate() {
+            assert!(m.0 == n.0 && m.1 == n.1, "{t}: message {k} (t = {} ns) differs after the resume", m.0);
+        }
+    }
+    for t in WALL_CLOCK_TOPICS.iter().filter(|t| **t != "/log") {
+        let (n, m) = (a.get(*t).map_or(0, Vec::len), b.get(*t).map_or(0, Vec::len));
+        assert_eq!(n, m, "{t}: as many frames resumed as straight");
+    }
+    let (s, r) = (summary(straight), summary(resumed));
+    assert_eq!((s.steps, s.sim_time.to_bits()), (r.steps, r.sim_time.to_bits()), "the same end");
+    assert_eq!(s.runout.to_bits(), r.runout.to_bits(), "the same runout");
+    assert_eq!(s.front, r.front, "the same front history");
+    assert_eq!(s.liquid_front, r.liquid_front, "the same liquid front history");
+}
+
+fn killed_and_resumed_equals_straight(name: &str, scene: &str, set: &[&str], processes: &[&str], victim: &str) {
+    let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
+    let straight = run_straight(&format!("{name}_straight"), scene, &set);
+    let resumed = run_killed(&format!("{name}_resumed"), scene, &set, processes, victim);
+    resume(&resumed);
+    assert_same_run(&straight, &resumed);
+}
+
+#[test]
+fn a_killed_dry_dem_run_resumes_bit_for_bit() {
+    killed_and_resumed_equals_straight(
+        "resume_dem",
+        "scenes/validation/dry_small.toml",
+        &["output.checkpoint_interval=0.05", "output.stop_at_rest=false"],
+        &["dem_proc"],
+        "dem_proc",
+    );
+}
+
+#[test]
+fn a_killed_fluid_run_resumes_bit_for_bit() {
+    killed_and_resumed_equals_straight(
+        "resume_lbm",
+        "scenes/validation/water_block.toml",
+        &["output.checkpoint_interval=0.03", "output.state_interval=0.05"],
+        &["lbm_proc"],
+        "lbm_proc",
+    );
+}
+
+#[test]
+fn a_killed_mpm_run_resumes_bit_for_bit() {
+    killed_and_resumed_equals_straight(
+        "resume_mpm",
+        "scenes/ceccato2020/mpm_sat_h030.toml",
+        &["output.end_time=0.1", "output.checkpoint_interval=0.01"],
+        &["mpm_proc"],
+        "mpm_proc",
+    );
+}
+
+fn coupled(schedule: &str, victim: &str) {
+    killed_and_resumed_equals_straight(
+        &format!("resume_coupled_{schedule}"),
+        "scenes/validation/settling_sphere.toml",
+        &[
+            "output.end_time=0.1",
+            "output.checkpoint_interval=0.01",
+            "output.state_interval=0.02",
+            "output.record_exchange=true",
+            &format!("coupling.schedule=\"{schedule}\""),
+        ],
+        &["dem_proc", "lbm_proc"],
+        victim,
+    );
+}
+
+#[test]
+fn a_killed_sequential_coupled_run_resumes_bit_for_bit() {
+    coupled("sequential", "dem_proc");
+}
+
+#[test]
+fn a_killed_concurrent_coupled_run_resumes_bit_for_bit() {
+    coupled("concurrent", "lbm_proc");
+}
