@@ -456,7 +456,7 @@ impl Solver for DemRun<'_> {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Vec<u8> {
+    fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
         let c = DemCheckpointRef {
             state: DemState::capture(&self.world),
             held: self.world.held_loads(),
@@ -464,7 +464,7 @@ impl Solver for DemRun<'_> {
             coordination_initial: self.coordination_initial,
             packing: &self.packing,
         };
-        bincode::serde::encode_to_vec(&c, bincode::config::standard()).expect("a checkpoint encodes")
+        checkpoint::encode_into(&c, out)
     }
 
     fn summary(&mut self, end: &RunEnd) -> RunSummary {

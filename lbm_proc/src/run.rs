@@ -146,18 +146,19 @@ pub fn run(
         Some(path) => Some(read_checkpoint(path, scene)?),
         None => None,
     };
-    let (fluid, mass_initial, active_initial) = match &resumed {
-        Some((_, c)) => {
-            let mut fluid =
-                Fluid::from_state(c.state.fluid.clone(), setup.params).map_err(|e| RunError::Lattice(e.to_string()))?;
+    // The lattice moves out of the checkpoint (a copy would double the memory).
+    let (fluid, mass_initial, active_initial, resumed) = match resumed {
+        Some((file, mut c)) => {
+            let state = std::mem::replace(&mut c.state.fluid, empty_fluid_state());
+            let mut fluid = Fluid::from_state(state, setup.params).map_err(|e| RunError::Lattice(e.to_string()))?;
             fluid.restore_returned_excess(c.returned.0, c.returned.1);
-            fluid.restore_forcing_memory(c.forcing.clone());
-            (fluid, c.mass_initial, c.active_initial)
+            fluid.restore_forcing_memory(std::mem::take(&mut c.forcing));
+            (fluid, c.mass_initial, c.active_initial, Some((file, c)))
         }
         None => {
             let fluid = initial_fluid(scene, &setup)?;
             let (m, a) = (fluid.liquid_mass(), fluid.active_cells());
-            (fluid, m, a)
+            (fluid, m, a, None)
         }
     };
 
@@ -337,6 +338,20 @@ struct LbmStateRef<'a> {
     fluid: &'a FluidState<f32>,
 }
 
+/// A lattice of no cells: what a checkpoint holds once its lattice is taken.
+fn empty_fluid_state() -> FluidState<f32> {
+    FluidState {
+        dims: [0; 3],
+        faces: [crate::fluid::Faces::Walls; 3],
+        flags: Vec::new(),
+        populations: Vec::new(),
+        mass: Vec::new(),
+        pending_excess: 0.0,
+        reference_mass: None,
+        step: 0,
+    }
+}
+
 fn read_checkpoint(path: &Path, scene: &Scene) -> Result<(CheckpointFile, LbmCheckpoint), RunError> {
     let file = checkpoint::read(path, "lbm_proc", scene).map_err(RecordError::from)?;
     let c =
@@ -473,7 +488,7 @@ impl Solver for LbmRun<'_> {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Vec<u8> {
+    fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
         let c = LbmCheckpointRef {
             state: LbmStateRef {
                 version: STATE_VERSION,
@@ -495,7 +510,7 @@ impl Solver for LbmRun<'_> {
             forcing: self.fluid.forcing_memory(),
             held_liquid: self.forcing.as_ref().map(|f| f.held_liquid()).unwrap_or_default(),
         };
-        bincode::serde::encode_to_vec(&c, bincode::config::standard()).expect("a checkpoint encodes")
+        checkpoint::encode_into(&c, out)
     }
 
     fn summary(&mut self, end: &RunEnd) -> RunSummary {

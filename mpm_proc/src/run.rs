@@ -425,7 +425,7 @@ impl Solver for MpmRun<'_> {
         Ok(())
     }
 
-    fn checkpoint(&self) -> Vec<u8> {
+    fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
         let c = MpmCheckpointRef {
             state: &self.mpm.state,
             gathered: &self.gathered,
@@ -436,7 +436,7 @@ impl Solver for MpmRun<'_> {
             liquid_mass0: self.liquid_mass0,
             pore_pressure_peak: self.mpm.pore_pressure_peak(),
         };
-        bincode::serde::encode_to_vec(&c, bincode::config::standard()).expect("a checkpoint encodes")
+        checkpoint::encode_into(&c, out)
     }
 
     fn summary(&mut self, end: &RunEnd) -> RunSummary {

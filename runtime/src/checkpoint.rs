@@ -11,10 +11,12 @@
 //! Files are `DIR/checkpoints/<process>-<step>.ckpt`:
 //!
 //! ```text
-//! b"SGFCKPT1"   magic
-//! u64 LE        length of the body
-//! body          bincode (standard) of CheckpointFile
-//! u64 LE        hash of the body (check_hash)
+//! b"SGFCKPT2"   magic
+//! u64 LE        length of the header
+//! header        bincode (standard) of CheckpointHeader
+//! solver        the solver's bytes, streamed (no copy of its state in memory)
+//! u64 LE        length of the solver's bytes
+//! u64 LE        hash of header and solver bytes (StreamHash)
 //! ```
 //!
 //! Written atomically: into `<name>.partial`, synced, renamed, the folder
@@ -28,11 +30,19 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-const MAGIC: &[u8; 8] = b"SGFCKPT1";
+const MAGIC: &[u8; 8] = b"SGFCKPT2";
 
 /// Checkpoints kept per process: the newest, and the one before it in case
 /// the newest is found damaged.
 pub const KEEP: usize = 2;
+
+/// Encodes `value` (bincode, standard config) into a checkpoint's solver part.
+pub fn encode_into<T: Serialize>(value: &T, out: &mut dyn Write) -> std::io::Result<()> {
+    let mut out = out;
+    bincode::serde::encode_into_std_write(value, &mut out, bincode::config::standard())
+        .map(|_| ())
+        .map_err(std::io::Error::other)
+}
 
 /// The folder of a run's checkpoints.
 pub fn folder(out_dir: &Path) -> PathBuf {
@@ -70,8 +80,17 @@ pub struct ExchangeState {
     pub exchanges: u64,
 }
 
-/// What a checkpoint file holds.
+/// The part of a checkpoint file before the solver's bytes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct CheckpointHeader {
+    process: String,
+    scene_hash: u64,
+    driver: DriverState,
+    exchange: Option<ExchangeState>,
+}
+
+/// What a checkpoint file holds.
+#[derive(Debug, Clone, PartialEq)]
 pub struct CheckpointFile {
     /// The process that wrote it ("dem_proc").
     pub process: String,
@@ -107,20 +126,83 @@ pub fn scene_hash(scene: &schemas::Scene) -> u64 {
     check_hash(table.to_string().as_bytes())
 }
 
-/// A 64-bit hash of `bytes` (FNV-1a over 8-byte words, then the tail):
-/// to tell a damaged file, not to resist an adversary.
+/// A 64-bit hash of `bytes` ([`StreamHash`] over them).
 pub fn check_hash(bytes: &[u8]) -> u64 {
+    let mut h = StreamHash::default();
+    h.update(bytes);
+    h.finish()
+}
+
+/// FNV-1a over 8-byte words, fed in pieces of any length, the length mixed
+/// in at the end: to tell a damaged file (~1 GB/s), not to resist an adversary.
+#[derive(Debug, Clone)]
+pub struct StreamHash {
+    h: u64,
+    pending: [u8; 8],
+    pending_len: usize,
+    len: u64,
+}
+
+impl Default for StreamHash {
+    fn default() -> Self {
+        Self { h: 0xcbf2_9ce4_8422_2325, pending: [0; 8], pending_len: 0, len: 0 }
+    }
+}
+
+impl StreamHash {
     const PRIME: u64 = 0x0000_0100_0000_01b3;
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325 ^ bytes.len() as u64;
-    let mut words = bytes.chunks_exact(8);
-    for w in &mut words {
-        h = (h ^ u64::from_le_bytes(w.try_into().expect("8 bytes"))).wrapping_mul(PRIME);
-        h ^= h >> 29;
+
+    fn word(&mut self, w: u64) {
+        self.h = (self.h ^ w).wrapping_mul(Self::PRIME);
+        self.h ^= self.h >> 29;
     }
-    for &b in words.remainder() {
-        h = (h ^ b as u64).wrapping_mul(PRIME);
+
+    pub fn update(&mut self, mut bytes: &[u8]) {
+        self.len += bytes.len() as u64;
+        if self.pending_len > 0 {
+            let take = (8 - self.pending_len).min(bytes.len());
+            self.pending[self.pending_len..self.pending_len + take].copy_from_slice(&bytes[..take]);
+            self.pending_len += take;
+            bytes = &bytes[take..];
+            if self.pending_len < 8 {
+                return;
+            }
+            self.word(u64::from_le_bytes(self.pending));
+            self.pending_len = 0;
+        }
+        let mut words = bytes.chunks_exact(8);
+        for w in &mut words {
+            self.word(u64::from_le_bytes(w.try_into().expect("8 bytes")));
+        }
+        let tail = words.remainder();
+        self.pending[..tail.len()].copy_from_slice(tail);
+        self.pending_len = tail.len();
     }
-    h
+
+    pub fn finish(&self) -> u64 {
+        let mut h = self.h;
+        for &b in &self.pending[..self.pending_len] {
+            h = (h ^ b as u64).wrapping_mul(Self::PRIME);
+        }
+        (h ^ self.len).wrapping_mul(Self::PRIME)
+    }
+}
+
+/// A writer that hashes and counts what goes through it.
+struct Hashing<W> {
+    inner: W,
+    hash: StreamHash,
+}
+
+impl<W: Write> Write for Hashing<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.hash.update(&buf[..n]);
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
 }
 
 /// Writes a process's checkpoints into a run's folder.
@@ -145,27 +227,35 @@ impl CheckpointWriter {
         Ok(Self { dir, process, scene_hash: scene_hash(scene), written: 0, last_bytes: 0, seconds: 0.0 })
     }
 
-    /// Writes one atomically, then removes this process's older ones beyond [`KEEP`].
+    /// Writes one atomically, the solver's part streamed by `solver`, then
+    /// removes this process's older ones beyond [`KEEP`].
     pub fn write(
         &mut self,
         driver: DriverState,
         exchange: Option<ExchangeState>,
-        solver: Vec<u8>,
+        solver: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
     ) -> Result<PathBuf, CheckpointError> {
         let started = std::time::Instant::now();
-        let file =
-            CheckpointFile { process: self.process.to_string(), scene_hash: self.scene_hash, driver, exchange, solver };
-        let body = bincode::serde::encode_to_vec(&file, bincode::config::standard()).expect("a checkpoint encodes");
+        let header =
+            CheckpointHeader { process: self.process.to_string(), scene_hash: self.scene_hash, driver, exchange };
+        let header = bincode::serde::encode_to_vec(&header, bincode::config::standard()).expect("a header encodes");
         let path = self.dir.join(format!("{}-{:014}.ckpt", self.process, driver.steps));
         let partial = path.with_extension("ckpt.partial");
         let werr = |source| CheckpointError::Write { path: path.clone(), source };
-        let mut f = File::create(&partial).map_err(werr)?;
-        f.write_all(MAGIC).map_err(werr)?;
-        f.write_all(&(body.len() as u64).to_le_bytes()).map_err(werr)?;
-        f.write_all(&body).map_err(werr)?;
-        f.write_all(&check_hash(&body).to_le_bytes()).map_err(werr)?;
-        f.sync_all().map_err(werr)?;
-        drop(f);
+        let mut file = File::create(&partial).map_err(werr)?;
+        file.write_all(MAGIC).map_err(werr)?;
+        file.write_all(&(header.len() as u64).to_le_bytes()).map_err(werr)?;
+        // Buffered before the hash: the solver's many small writes reach
+        // the hash and the file in large pieces.
+        let mut out = std::io::BufWriter::with_capacity(8 << 20, Hashing { inner: file, hash: StreamHash::default() });
+        out.write_all(&header).map_err(werr)?;
+        solver(&mut out).map_err(werr)?;
+        let Hashing { inner: mut file, hash } = out.into_inner().map_err(|e| werr(e.into_error()))?;
+        let solver_len = hash.len - header.len() as u64;
+        file.write_all(&solver_len.to_le_bytes()).map_err(werr)?;
+        file.write_all(&hash.finish().to_le_bytes()).map_err(werr)?;
+        file.sync_all().map_err(werr)?;
+        drop(file);
         std::fs::rename(&partial, &path).map_err(werr)?;
         // The rename itself is durable only once the folder is synced.
         if let Ok(d) = File::open(&self.dir) {
@@ -175,7 +265,7 @@ impl CheckpointWriter {
             let _ = std::fs::remove_file(old.1);
         }
         self.written += 1;
-        self.last_bytes = body.len() as u64 + 24;
+        self.last_bytes = 32 + header.len() as u64 + solver_len;
         self.seconds += started.elapsed().as_secs_f64();
         Ok(path)
     }
@@ -218,31 +308,42 @@ pub fn read(path: &Path, process: &str, scene: &schemas::Scene) -> Result<Checkp
 /// Reads a checkpoint and checks its framing and hash only.
 pub fn read_unchecked(path: &Path) -> Result<CheckpointFile, CheckpointError> {
     let bytes = std::fs::read(path).map_err(|source| CheckpointError::Read { path: path.to_path_buf(), source })?;
-    decode(&bytes).map_err(|why| CheckpointError::Damaged { path: path.to_path_buf(), why })
+    decode(bytes).map_err(|why| CheckpointError::Damaged { path: path.to_path_buf(), why })
 }
 
-/// Decodes the bytes of a checkpoint file, checking magic, length and hash.
-pub fn decode(bytes: &[u8]) -> Result<CheckpointFile, String> {
-    if bytes.len() < 24 || &bytes[..8] != MAGIC {
-        return Err("no checkpoint header (not a checkpoint, or cut before its first bytes)".into());
+/// Decodes the bytes of a checkpoint file, checking magic, lengths and hash.
+pub fn decode(mut bytes: Vec<u8>) -> Result<CheckpointFile, String> {
+    let word = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().expect("8 bytes"));
+    if bytes.len() < 32 || &bytes[..8] != MAGIC {
+        return Err("no checkpoint header (not a checkpoint of this version, or cut before its first bytes)".into());
     }
-    let len = u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes"));
-    let end = 16u64.checked_add(len).filter(|&e| e.checked_add(8) == Some(bytes.len() as u64));
-    let Some(end) = end else {
+    let header_len = word(8);
+    let solver_len = word(bytes.len() - 16);
+    let expected = header_len.checked_add(solver_len).and_then(|n| n.checked_add(32));
+    if expected != Some(bytes.len() as u64) {
         return Err(format!(
-            "{} bytes where the header announces {} (cut short while written?)",
-            bytes.len(),
-            len + 24
+            "{} bytes where its lengths announce another size (cut short while written?)",
+            bytes.len()
         ));
-    };
-    let body = &bytes[16..end as usize];
-    let stored = u64::from_le_bytes(bytes[end as usize..].try_into().expect("8 bytes"));
-    if check_hash(body) != stored {
+    }
+    let body = &bytes[16..bytes.len() - 16];
+    if check_hash(body) != word(bytes.len() - 8) {
         return Err("its content does not match its hash (damaged on disk)".into());
     }
-    bincode::serde::decode_from_slice(body, bincode::config::standard())
-        .map(|(f, _)| f)
-        .map_err(|e| format!("its content does not decode ({e})"))
+    let header: CheckpointHeader =
+        bincode::serde::decode_from_slice(&body[..header_len as usize], bincode::config::standard())
+            .map(|(h, _)| h)
+            .map_err(|e| format!("its header does not decode ({e})"))?;
+    // The solver's bytes in place (a lattice's are gigabytes: no second copy).
+    bytes.truncate(bytes.len() - 16);
+    bytes.drain(..16 + header_len as usize);
+    Ok(CheckpointFile {
+        process: header.process,
+        scene_hash: header.scene_hash,
+        driver: header.driver,
+        exchange: header.exchange,
+        solver: bytes,
+    })
 }
 
 /// The newest usable checkpoint of each of `processes` at one and the same
@@ -308,12 +409,23 @@ mod tests {
     }
 
     #[test]
+    fn the_hash_of_pieces_is_the_hash_of_the_whole() {
+        let bytes: Vec<u8> = (0..1000u32).map(|i| (i * 7 % 251) as u8).collect();
+        let mut h = StreamHash::default();
+        for piece in [&bytes[..3], &bytes[3..11], &bytes[11..12], &bytes[12..500], &bytes[500..]] {
+            h.update(piece);
+        }
+        assert_eq!(h.finish(), check_hash(&bytes));
+        assert_ne!(check_hash(&bytes[..999]), check_hash(&bytes));
+    }
+
+    #[test]
     fn written_checkpoints_read_back_and_only_the_newest_are_kept() {
         let dir = tempdir("kept");
         let scene = scene();
         let mut w = CheckpointWriter::new(&dir, "dem_proc", &scene).unwrap();
         for steps in [100, 200, 300] {
-            w.write(driver(steps), None, vec![steps as u8; 1000]).unwrap();
+            w.write(driver(steps), None, |o| o.write_all(&[steps as u8; 1000])).unwrap();
         }
         let files = list(&folder(&dir), "dem_proc");
         assert_eq!(files.iter().map(|f| f.0).collect::<Vec<_>>(), vec![200, 300]);
@@ -328,8 +440,8 @@ mod tests {
         let dir = tempdir("damaged");
         let scene = scene();
         let mut w = CheckpointWriter::new(&dir, "mpm_proc", &scene).unwrap();
-        w.write(driver(10), None, vec![1; 4096]).unwrap();
-        let newest = w.write(driver(20), None, vec![2; 4096]).unwrap();
+        w.write(driver(10), None, |o| o.write_all(&vec![1; 4096])).unwrap();
+        let newest = w.write(driver(20), None, |o| o.write_all(&vec![2; 4096])).unwrap();
         let bytes = std::fs::read(&newest).unwrap();
         // A kill while writing leaves a .partial file; a crash of the disk a cut one.
         std::fs::write(folder(&dir).join("mpm_proc-00000000000030.ckpt.partial"), &bytes[..100]).unwrap();
@@ -349,7 +461,7 @@ mod tests {
         let dir = tempdir("scene");
         let scene = scene();
         let mut w = CheckpointWriter::new(&dir, "dem_proc", &scene).unwrap();
-        let path = w.write(driver(5), None, Vec::new()).unwrap();
+        let path = w.write(driver(5), None, |_| Ok(())).unwrap();
         let path_to = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/validation/minimal_dry_column.toml");
         let longer = schemas::Scene::load(&path_to, &["output.end_time=9.0".into()]).unwrap();
         assert!(read(&path, "dem_proc", &longer).is_ok());
@@ -364,10 +476,10 @@ mod tests {
         let x = |next| Some(ExchangeState { next, last_exchange: next - 1, last_time: 0.0, exchanges: next });
         let mut dem = CheckpointWriter::new(&dir, "dem_proc", &scene).unwrap();
         let mut lbm = CheckpointWriter::new(&dir, "lbm_proc", &scene).unwrap();
-        dem.write(driver(570), x(10), Vec::new()).unwrap();
-        lbm.write(driver(10), x(10), Vec::new()).unwrap();
+        dem.write(driver(570), x(10), |_| Ok(())).unwrap();
+        lbm.write(driver(10), x(10), |_| Ok(())).unwrap();
         // The DEM got one further before the kill.
-        dem.write(driver(1140), x(20), Vec::new()).unwrap();
+        dem.write(driver(1140), x(20), |_| Ok(())).unwrap();
         let (set, _) = latest_common(&folder(&dir), &["dem_proc", "lbm_proc"], &scene);
         let set = set.unwrap();
         assert_eq!((set[0].1.driver.steps, set[1].1.driver.steps), (570, 10));

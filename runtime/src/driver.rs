@@ -257,7 +257,8 @@ pub trait Solver {
     /// The solver's part of a checkpoint: everything a run continued from
     /// it needs to end in the same state, bit for bit, and to write the
     /// same summary (the state, held loads, what the frames gathered).
-    fn checkpoint(&self) -> Vec<u8>;
+    /// Writes it into `out` (streamed: a lattice's state is not copied).
+    fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()>;
     /// The run's summary.
     fn summary(&mut self, end: &RunEnd) -> RunSummary;
     /// The `/log` line that closes the run.
@@ -417,7 +418,7 @@ pub fn drive<'x, S: Solver>(
                 if let Some(r) = rec.recorder() {
                     r.sync()?;
                 }
-                writer.write(state, position, solver.checkpoint()).map_err(RecordError::from)?;
+                writer.write(state, position, |out| solver.checkpoint(out)).map_err(RecordError::from)?;
             }
         }
         if last_progress.elapsed().as_secs_f64() > 0.5 {
@@ -607,8 +608,8 @@ mod tests {
             self.states.push(self.steps);
             Ok(())
         }
-        fn checkpoint(&self) -> Vec<u8> {
-            self.steps.to_le_bytes().to_vec()
+        fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
+            out.write_all(&self.steps.to_le_bytes())
         }
         fn summary(&mut self, end: &RunEnd) -> RunSummary {
             RunSummary {
@@ -729,7 +730,7 @@ mod tests {
         let speed = |s| if (30..=40).contains(&s) { 0.5 } else { 0.0 };
         let cadence = Cadence { steps_per_checkpoint: Some(20), ..CADENCE };
         let summary = dir.join("summary.json");
-        let mut go = |toy: &mut Toy<'_>, checkpoints: &mut Checkpoints| {
+        let go = |toy: &mut Toy<'_>, checkpoints: &mut Checkpoints| {
             let mut rec = Recording::off("toy");
             let stop = AtomicBool::new(false);
             drive(toy, None, &mut rec, cadence, REST, checkpoints, &stop, &mut |_, _| {}, &summary).unwrap()
