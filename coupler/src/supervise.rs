@@ -258,6 +258,10 @@ pub async fn run(scene: Scene, out: PathBuf, threads: Option<usize>, quiet: bool
     let failed = ended.first_failure.is_some();
     let summary = finish_summary(&out, solvers, started.elapsed().as_secs_f64(), interrupted, failed);
     let recording = collect_recording(&out, solvers, &scene_toml, summary.as_ref(), resume.as_ref());
+    if !interrupted && !failed && summary.is_some() {
+        // A finished run has nothing to resume: its checkpoints only take space.
+        let _ = std::fs::remove_dir_all(runtime::checkpoint::folder(&out));
+    }
     conclude(&ended, &names, coupled, summary.as_ref(), &recording, &out)
 }
 

@@ -7,6 +7,7 @@
 //! `PROPTEST_CASES=100000 cargo test --release -p integration-tests --test fuzz_inputs`.
 //! Failing cases proptest finds are kept in `tests/proptest-regressions/`.
 
+use std::io::Write;
 use std::path::Path;
 
 use proptest::prelude::*;
@@ -143,4 +144,42 @@ proptest! {
             let _ = mpm_proc::run::MpmStateRecord::decode(&bytes);
         }
     }
+
+    /// A checkpoint cut anywhere or with any one bit flipped is refused
+    /// with a reason (every byte is under the lengths or the hash), never
+    /// read as another state; junk of any length is refused too.
+    #[test]
+    fn damaged_checkpoints_are_refused(cut in 0usize..2000, flip in 0usize..2000, bit in 0u8..8, junk in proptest::collection::vec(any::<u8>(), 0..300)) {
+        let valid = checkpoint_bytes();
+        let cut = cut % valid.len();
+        prop_assert!(runtime::checkpoint::decode(valid[..cut].to_vec()).is_err());
+        let mut flipped = valid.clone();
+        flipped[flip % valid.len()] ^= 1 << bit;
+        prop_assert!(runtime::checkpoint::decode(flipped).is_err());
+        let _ = runtime::checkpoint::decode(junk);
+        prop_assert!(runtime::checkpoint::decode(valid).is_ok());
+    }
+}
+
+/// The bytes of a small valid checkpoint (written once, as the driver writes them).
+fn checkpoint_bytes() -> Vec<u8> {
+    static BYTES: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+    BYTES
+        .get_or_init(|| {
+            let dir = integration_tests::scratch_dir("fuzz_checkpoint");
+            let scene = Scene::from_toml_str(DRY, Path::new("."), &[]).expect("the dry scene loads");
+            let mut w = runtime::checkpoint::CheckpointWriter::new(&dir, "dem_proc", &scene).expect("writer");
+            let driver = runtime::checkpoint::DriverState {
+                steps: 7,
+                time: 7e-6,
+                last_recorded: 0,
+                last_state: Some(0),
+                frames_at_rest: 0,
+                has_moved: false,
+                work: 7.0,
+            };
+            let path = w.write(driver, None, |o| o.write_all(&[42u8; 600])).expect("written");
+            std::fs::read(path).expect("read back")
+        })
+        .clone()
 }

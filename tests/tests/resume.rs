@@ -147,15 +147,37 @@ fn a_killed_fluid_run_resumes_bit_for_bit() {
     );
 }
 
+/// Also what `--resume` refuses: other physics than the run's (its
+/// checkpoints passed over, named, the run directory left as it was) and a
+/// finished run (its checkpoints removed when it completed).
 #[test]
 fn a_killed_mpm_run_resumes_bit_for_bit() {
-    killed_and_resumed_equals_straight(
-        "resume_mpm",
-        "scenes/ceccato2020/mpm_sat_h030.toml",
-        &["output.end_time=0.1", "output.checkpoint_interval=0.01"],
-        &["mpm_proc"],
-        "mpm_proc",
-    );
+    let name = "resume_mpm";
+    let scene = "scenes/ceccato2020/mpm_sat_h030.toml";
+    let set = ["output.end_time=0.1".to_string(), "output.checkpoint_interval=0.01".to_string()];
+    let straight = run_straight(&format!("{name}_straight"), scene, &set);
+    assert!(!straight.join("checkpoints").exists(), "a completed run keeps no checkpoints");
+    let refused = refused_resume(&straight, &[]);
+    assert!(refused.contains("no checkpoint in"), "{refused}");
+    let resumed = run_killed(&format!("{name}_resumed"), scene, &set, &["mpm_proc"], "mpm_proc");
+    let recording = std::fs::read(resumed.join("run.mcap")).expect("the killed run's recording");
+    let refused = refused_resume(&resumed, &["mpm.courant=0.4"]);
+    assert!(refused.contains("is of a different scene"), "{refused}");
+    assert!(std::fs::read(resumed.join("run.mcap")).expect("kept") == recording, "a refused resume changes nothing");
+    resume(&resumed);
+    assert_same_run(&straight, &resumed);
+}
+
+/// `coupler run --resume DIR --set …` that must fail: its message.
+fn refused_resume(out: &Path, set: &[&str]) -> String {
+    let dir = out.to_str().expect("a UTF-8 path");
+    let mut cmd = coupler(out, &["run", "--resume", dir]);
+    for s in set {
+        cmd.arg("--set").arg(s);
+    }
+    let o = cmd.output().expect("coupler");
+    assert_eq!(o.status.code(), Some(1), "refused with exit status 1");
+    String::from_utf8_lossy(&o.stderr).to_string()
 }
 
 fn coupled(schedule: &str, victim: &str) {
