@@ -7,7 +7,6 @@
 //! `PROPTEST_CASES=100000 cargo test --release -p integration-tests --test fuzz_inputs`.
 //! Failing cases proptest finds are kept in `tests/proptest-regressions/`.
 
-use std::io::Write;
 use std::path::Path;
 
 use proptest::prelude::*;
