@@ -1,6 +1,8 @@
 //! `coupler inspect`: topics, message counts, time span and summary of a recording.
-//! Works on a finished file (uses its summary section) and on a file whose
-//! writer died (streams the chunks written so far).
+//! Works on a finished file (its summary section says what was recorded;
+//! every chunk is also read, so a file damaged since is told apart, with
+//! what of it is still readable) and on a file whose writer died (streams
+//! the chunks written so far).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -8,7 +10,48 @@ use std::path::Path;
 use runtime::say;
 use schemas::topics::metadata;
 
-pub fn inspect(path: &Path) -> Result<(), String> {
+/// What streaming a file read: per topic (schema, encoding, messages), the
+/// time span, and the error reading stopped at, if any.
+struct Streamed {
+    topics: BTreeMap<String, (String, String, u64)>,
+    span: (u64, u64),
+    error: Option<String>,
+}
+
+/// A finished file is read with every chunk's CRC checked before its
+/// messages count (damage since it was written); an unfinished one (a
+/// killed writer) as far as its last chunk decompresses, complete or not.
+fn stream(bytes: &[u8], finished: bool) -> Streamed {
+    let stream: Box<dyn Iterator<Item = Result<mcap::Message<'_>, mcap::McapError>>> = if finished {
+        Box::new(runtime::record::verified_messages(bytes))
+    } else {
+        match mcap::MessageStream::new_with_options(bytes, mcap::read::Options::IgnoreEndMagic.into()) {
+            Ok(s) => Box::new(s),
+            Err(e) => Box::new(std::iter::once(Err(e))),
+        }
+    };
+    let mut out = Streamed { topics: BTreeMap::new(), span: (u64::MAX, 0), error: None };
+    for msg in stream {
+        let msg = match msg {
+            Ok(m) => m,
+            Err(e) => {
+                out.error = Some(e.to_string());
+                break;
+            }
+        };
+        let schema = msg.channel.schema.as_ref().map(|s| s.name.clone()).unwrap_or_else(|| "-".into());
+        let e =
+            out.topics.entry(msg.channel.topic.clone()).or_insert((schema, msg.channel.message_encoding.clone(), 0));
+        e.2 += 1;
+        out.span = (out.span.0.min(msg.log_time), out.span.1.max(msg.log_time));
+    }
+    out
+}
+
+/// Prints the report; Err only for a file that is not MCAP or cannot be
+/// read. Returns whether the file is damaged (a finished file whose
+/// chunks no longer read as recorded).
+pub fn inspect(path: &Path) -> Result<bool, String> {
     let bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     if !bytes.starts_with(mcap::MAGIC) {
         return Err(format!("{} is not an MCAP file (no MCAP magic bytes at its start)", path.display()));
@@ -18,6 +61,8 @@ pub fn inspect(path: &Path) -> Result<(), String> {
     let mut topics: BTreeMap<String, (String, String, u64)> = BTreeMap::new();
     let (mut t0, mut t1) = (u64::MAX, 0u64);
     let mut run_summary = None;
+    let streamed = stream(&bytes, summary.is_some());
+    let mut damaged = false;
     match &summary {
         Some(s) => {
             let stats = s.stats.as_ref();
@@ -37,30 +82,29 @@ pub fn inspect(path: &Path) -> Result<(), String> {
                     }
                 }
             }
+            let readable = |t: &str| streamed.topics.get(t).map_or(0, |e| e.2);
+            damaged = streamed.error.is_some() || topics.iter().any(|(t, e)| readable(t) != e.2);
+            if damaged {
+                let (read, recorded): (u64, u64) =
+                    topics.iter().map(|(t, e)| (readable(t), e.2)).fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+                let upto = if read > 0 {
+                    format!("up to t = {:.4} s", streamed.span.1 as f64 * 1e-9)
+                } else {
+                    "none of them".to_string()
+                };
+                say!(
+                    "damaged      the file was finished, but reading its chunks stopped at: {}; {read} of its {recorded} messages are readable, {upto} (per topic below: readable / recorded)",
+                    streamed.error.as_deref().unwrap_or("fewer messages than its summary counts"),
+                );
+                for (t, e) in topics.iter_mut() {
+                    e.1 = format!("{}   readable {} / {}", e.1, readable(t), e.2);
+                }
+            }
         }
         None => {
             say!("note         no summary section (the writer did not finish): streaming what was written");
-            let stream = mcap::MessageStream::new_with_options(&bytes, mcap::read::Options::IgnoreEndMagic.into())
-                .map_err(|e| format!("{} is not an MCAP file: {e}", path.display()))?;
-            let mut stream_error = None;
-            for msg in stream {
-                let msg = match msg {
-                    Ok(m) => m,
-                    Err(e) => {
-                        stream_error = Some(e.to_string());
-                        break;
-                    }
-                };
-                let schema = msg.channel.schema.as_ref().map(|s| s.name.clone()).unwrap_or_else(|| "-".into());
-                let e = topics.entry(msg.channel.topic.clone()).or_insert((
-                    schema,
-                    msg.channel.message_encoding.clone(),
-                    0,
-                ));
-                e.2 += 1;
-                t0 = t0.min(msg.log_time);
-                t1 = t1.max(msg.log_time);
-            }
+            topics = streamed.topics;
+            (t0, t1) = streamed.span;
             if let Some((start, claimed_end)) = unfinished_record(&bytes) {
                 let missing = claimed_end - bytes.len();
                 say!(
@@ -68,7 +112,7 @@ pub fn inspect(path: &Path) -> Result<(), String> {
                     100.0 * missing as f64 / (claimed_end - start) as f64
                 );
             }
-            if let Some(e) = stream_error {
+            if let Some(e) = streamed.error {
                 say!("damaged      reading stopped at: {e}; the messages listed below were read before it");
             }
         }
@@ -113,7 +157,7 @@ pub fn inspect(path: &Path) -> Result<(), String> {
         }
         None => say!("summary      none recorded (run interrupted before the end or still running)"),
     }
-    Ok(())
+    Ok(damaged)
 }
 
 /// The top-level record the file ends inside, if any, as (its start, the

@@ -65,7 +65,9 @@ enum Command {
         #[arg(long, value_parser = METHODS)]
         method: Option<String>,
     },
-    /// Summarise a recording: topics, message counts, time span, and the run summary.
+    /// Summarise a recording: topics, message counts, time span, and the run
+    /// summary; what a cut or damaged file still holds (exit status 1 when a
+    /// finished file no longer reads as recorded).
     Inspect {
         /// A run.mcap written by `coupler run`.
         recording: PathBuf,
@@ -131,7 +133,14 @@ fn main() -> ExitCode {
             Err(code) => code,
         },
         Command::Inspect { recording } => match inspect::inspect(&recording) {
-            Ok(()) => ExitCode::SUCCESS,
+            Ok(false) => ExitCode::SUCCESS,
+            Ok(true) => {
+                eprintln!(
+                    "coupler: {} is damaged (see 'damaged' above); what is readable can still be read by streaming MCAP readers",
+                    recording.display()
+                );
+                ExitCode::FAILURE
+            }
             Err(e) => {
                 eprintln!("coupler: {e}");
                 ExitCode::FAILURE

@@ -62,7 +62,9 @@ pub fn merge_recordings(
         }
     }
     let out = File::create(output).map_err(|e| format!("cannot create {}: {e}", output.display()))?;
-    let werr = |e: mcap::McapError| format!("writing {} failed: {e} (is the disk full?)", output.display());
+    let werr = |e: mcap::McapError| {
+        format!("writing {} failed: {} (is the disk full?)", output.display(), runtime::record::error_chain(&e))
+    };
     let mut writer = mcap::WriteOptions::new()
         .compression(Some(mcap::Compression::Zstd))
         .compression_level(1)

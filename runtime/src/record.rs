@@ -50,13 +50,28 @@ pub struct RecorderBuilder {
 pub enum RecordError {
     #[error("cannot create recording {path}: {source}")]
     Create { path: PathBuf, source: std::io::Error },
-    #[error("writing recording {path} failed: {source} (is the disk full? free space or choose another --out)")]
+    #[error("writing recording {path} failed: {} (is the disk full? free space or choose another --out)", error_chain(.source))]
     Write { path: PathBuf, source: mcap::McapError },
     #[error("the recorder thread stopped early: {0}")]
     Stopped(String),
     /// A checkpoint, the recording's companion for resuming, failed.
     #[error(transparent)]
     Checkpoint(#[from] crate::checkpoint::CheckpointError),
+}
+
+/// An error and its causes, "outer: inner: …" (the mcap writer's own
+/// message names no cause: "I/O error from writing").
+pub fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut text = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        let next = s.to_string();
+        if !text.contains(&next) {
+            text = format!("{text}: {next}");
+        }
+        source = s.source();
+    }
+    text
 }
 
 impl RecorderBuilder {
@@ -305,5 +320,42 @@ pub fn identity_pose() -> foxglove::schemas::Pose {
     foxglove::schemas::Pose {
         position: Some(foxglove::schemas::Vector3 { x: 0.0, y: 0.0, z: 0.0 }),
         orientation: Some(identity_quaternion()),
+    }
+}
+
+/// The messages of an MCAP file in file order, each chunk's CRC checked
+/// before any of its messages is given out: a damaged chunk ends the
+/// stream with its error and none of its messages is passed on (the
+/// crate's `MessageStream` checks a chunk only after yielding it). A file
+/// without its end (a killed writer) reads to its last complete record.
+pub fn verified_messages(bytes: &[u8]) -> VerifiedMessages<'_> {
+    let options =
+        mcap::sans_io::LinearReaderOptions::default().with_skip_end_magic(true).with_prevalidate_chunk_crcs(true);
+    VerifiedMessages { reader: mcap::sans_io::MessageReader::new_with_options(options), rest: bytes }
+}
+
+/// See [`verified_messages`].
+pub struct VerifiedMessages<'a> {
+    reader: mcap::sans_io::MessageReader,
+    rest: &'a [u8],
+}
+
+impl Iterator for VerifiedMessages<'_> {
+    type Item = Result<mcap::Message<'static>, mcap::McapError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        use mcap::sans_io::MessageReadEvent;
+        loop {
+            match self.reader.next_event()? {
+                Ok(MessageReadEvent::ReadRequest(need)) => {
+                    let n = need.min(self.rest.len());
+                    self.reader.insert(n).copy_from_slice(&self.rest[..n]);
+                    self.reader.notify_read(n);
+                    self.rest = &self.rest[n..];
+                }
+                Ok(MessageReadEvent::Message(m)) => return Some(Ok(m)),
+                Err(e) => return Some(Err(e)),
+            }
+        }
     }
 }

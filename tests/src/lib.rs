@@ -188,3 +188,51 @@ pub fn proto_doubles(bytes: &[u8]) -> std::collections::BTreeMap<u64, f64> {
     }
     out
 }
+
+/// Topics whose messages hold wall-clock figures (rates, wait times) or
+/// the processes' own log lines: all others of two runs of one scene must
+/// match byte for byte.
+pub const WALL_CLOCK_TOPICS: [&str; 6] =
+    ["/log", "/dem/metrics", "/lbm/metrics", "/mpm/metrics", "/dem/coupling", "/lbm/coupling"];
+
+/// Every message of a recording by topic: (log time, bytes).
+pub fn messages(path: &Path) -> std::collections::BTreeMap<String, Vec<(u64, Vec<u8>)>> {
+    let bytes = std::fs::read(path).expect("recording exists");
+    let mut out = std::collections::BTreeMap::<String, Vec<(u64, Vec<u8>)>>::new();
+    for m in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
+        let m = m.expect("a complete recording");
+        out.entry(m.channel.topic.clone()).or_default().push((m.log_time, m.data.into_owned()));
+    }
+    out
+}
+
+/// The run's `summary.json`.
+pub fn summary(out: &Path) -> schemas::summary::RunSummary {
+    let text = std::fs::read_to_string(out.join("summary.json")).expect("summary.json");
+    serde_json::from_str(&text).expect("a run summary")
+}
+
+/// Two runs of one scene in `straight` and `resumed` ended alike: every
+/// message of their `run.mcap` but the wall-clock topics byte for byte at
+/// the same times, as many frames of those, the same summary measures.
+pub fn assert_same_run(straight: &Path, resumed: &Path) {
+    let (a, b) = (messages(&straight.join("run.mcap")), messages(&resumed.join("run.mcap")));
+    let topics: Vec<&String> = a.keys().filter(|t| !WALL_CLOCK_TOPICS.contains(&t.as_str())).collect();
+    assert!(topics.iter().any(|t| t.ends_with("/state")), "the recording holds states: {topics:?}");
+    for t in topics {
+        let (x, y) = (&a[t], b.get(t).unwrap_or_else(|| panic!("the resumed recording lacks {t}")));
+        assert_eq!(x.len(), y.len(), "{t}: {} messages straight, {} resumed", x.len(), y.len());
+        for (k, (m, n)) in x.iter().zip(y).enumerate() {
+            assert!(m.0 == n.0 && m.1 == n.1, "{t}: message {k} (t = {} ns) differs after the resume", m.0);
+        }
+    }
+    for t in WALL_CLOCK_TOPICS.iter().filter(|t| **t != "/log") {
+        let (n, m) = (a.get(*t).map_or(0, Vec::len), b.get(*t).map_or(0, Vec::len));
+        assert_eq!(n, m, "{t}: as many frames resumed as straight");
+    }
+    let (s, r) = (summary(straight), summary(resumed));
+    assert_eq!((s.steps, s.sim_time.to_bits()), (r.steps, r.sim_time.to_bits()), "the same end");
+    assert_eq!(s.runout.to_bits(), r.runout.to_bits(), "the same runout");
+    assert_eq!(s.front, r.front, "the same front history");
+    assert_eq!(s.liquid_front, r.liquid_front, "the same liquid front history");
+}

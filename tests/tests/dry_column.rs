@@ -173,6 +173,30 @@ fn inspect_says_what_a_cut_recording_lost() {
     assert!(missing > 0 && missing <= bytes.len() - keep, "{cut_line}");
 }
 
+/// A finished recording damaged since (bytes overwritten in its middle, as
+/// a bad disk or a bad copy would): `inspect` reads every chunk, not only
+/// the summary section, says how many messages are still readable and up
+/// to when, and exits 1.
+#[test]
+fn inspect_tells_a_damaged_finished_recording() {
+    let mut bytes = std::fs::read(small_run().join("run.mcap")).unwrap();
+    let at = bytes.len() / 2;
+    for b in &mut bytes[at..at + 64] {
+        *b ^= 0x5a;
+    }
+    let damaged = scratch_dir("inspect_damaged").join("damaged.mcap");
+    std::fs::write(&damaged, &bytes).unwrap();
+    let out = Command::new(binary("coupler")).arg("inspect").arg(&damaged).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "{text}{}", String::from_utf8_lossy(&out.stderr));
+    let line = text.lines().find(|l| l.starts_with("damaged")).unwrap_or_else(|| panic!("no 'damaged' line:\n{text}"));
+    let (before, after) = line.split_once(" of its ").unwrap_or_else(|| panic!("no counts: {line}"));
+    let read: u64 = before.rsplit(' ').next().and_then(|w| w.parse().ok()).unwrap_or_else(|| panic!("{line}"));
+    let recorded: u64 = after.split(' ').next().and_then(|w| w.parse().ok()).unwrap_or_else(|| panic!("{line}"));
+    assert!(read < recorded, "fewer readable than recorded: {line}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("is damaged"), "the last word names it");
+}
+
 /// The recording read by a reader this project did not write: PyPI `mcap`
 /// with `mcap-protobuf-support`, through the script printed in docs/recording.md.
 #[test]
