@@ -74,6 +74,19 @@ pub fn print(scene: &Scene) {
         })
         .collect();
     println!("estimate     {}", estimate.join("; "));
+    let out = &scene.spec.output;
+    match out.checkpoint_interval {
+        Some(interval) => {
+            // A checkpoint is the solvers' state: less than their memory (no scratch).
+            let state: f64 = plans.iter().map(|p| p.memory).sum();
+            println!(
+                "checkpoints  every {interval} s simulated, up to {}, each under ~{:.0} MB (the newest two per process kept; removed when the run completes); resume with `coupler run --resume OUT`",
+                (out.end_time / interval).floor(),
+                state / 1e6
+            );
+        }
+        None => println!("checkpoints  none: set output.checkpoint_interval to make a killed run resumable"),
+    }
     let warnings: Vec<&String> = plans.iter().flat_map(|p| &p.warnings).collect();
     if warnings.is_empty() {
         println!("warnings     none");

@@ -1,6 +1,7 @@
 //! `coupler`: one command to check, run, supervise and inspect a scene.
 
 mod check;
+mod export;
 mod inspect;
 mod merge;
 mod supervise;
@@ -64,6 +65,21 @@ enum Command {
         /// Check the scene as run with this method: `--set scene.method=…`, applied before the other --set values.
         #[arg(long, value_parser = METHODS)]
         method: Option<String>,
+    },
+    /// Write a recording's points as VTK files for ParaView: grains,
+    /// the water's surface, MPM points, each a time series (`.pvd`).
+    Export {
+        /// A run directory or its run.mcap.
+        run: PathBuf,
+        /// VTK XML unstructured grids (`.vtu`) with a `.pvd` per series: the only format so far.
+        #[arg(long)]
+        vtk: bool,
+        /// Every K-th frame of each series.
+        #[arg(long, default_value_t = 1, value_name = "K")]
+        every: usize,
+        /// Output directory (default: `vtk/` beside the recording).
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// Summarise a recording: topics, message counts, time span, and the run
     /// summary; what a cut or damaged file still holds (exit status 1 when a
@@ -132,6 +148,30 @@ fn main() -> ExitCode {
             }
             Err(code) => code,
         },
+        Command::Export { run, vtk, every, out } => {
+            if !vtk {
+                eprintln!("coupler: export needs a format: --vtk (VTK files for ParaView) is the one there is");
+                return ExitCode::from(EXIT_BAD_SCENE as u8);
+            }
+            let recording = if run.is_dir() { run.join("run.mcap") } else { run };
+            let out = out.unwrap_or_else(|| recording.parent().unwrap_or(std::path::Path::new(".")).join("vtk"));
+            match export::export_vtk(&recording, &out, every) {
+                Ok(e) if e.series.is_empty() => {
+                    eprintln!("coupler: {} holds no points to export", recording.display());
+                    ExitCode::FAILURE
+                }
+                Ok(e) => {
+                    for (name, frames) in &e.series {
+                        println!("{name:<16} {frames} frames: {}", out.join(format!("{name}.pvd")).display());
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("coupler: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
         Command::Inspect { recording } => match inspect::inspect(&recording) {
             Ok(false) => ExitCode::SUCCESS,
             Ok(true) => {

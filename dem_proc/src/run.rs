@@ -342,34 +342,19 @@ fn prepare_packing(
 
 /// A DEM run's checkpoint ([`Solver::checkpoint`]): the state, the loads
 /// it holds (coupled), the fronts so far and what the packing measured.
-#[derive(Deserialize)]
-struct DemCheckpoint {
+/// Written borrowing the run's parts (`DemCheckpoint<&Fronts, &PackingReport>`),
+/// read owning them.
+#[derive(Serialize, Deserialize)]
+struct DemCheckpoint<F = Fronts, P = PackingReport> {
     state: DemState,
     held: Option<HeldLoads>,
-    fronts: Fronts,
+    fronts: F,
     coordination_initial: f64,
-    packing: PackingReport,
-}
-
-#[derive(Serialize)]
-struct DemCheckpointRef<'a> {
-    state: DemState,
-    held: Option<HeldLoads>,
-    fronts: &'a Fronts,
-    coordination_initial: f64,
-    packing: &'a PackingReport,
+    packing: P,
 }
 
 fn read_checkpoint(path: &Path, scene: &Scene) -> Result<(CheckpointFile, DemCheckpoint), RunError> {
-    let file = checkpoint::read(path, "dem_proc", scene).map_err(RecordError::from)?;
-    let c =
-        bincode::serde::decode_from_slice(&file.solver, bincode::config::standard()).map(|(c, _)| c).map_err(|e| {
-            RecordError::from(checkpoint::CheckpointError::Damaged {
-                path: path.to_path_buf(),
-                why: format!("its DEM state does not decode ({e}): written by another version of dem_proc?"),
-            })
-        })?;
-    Ok((file, c))
+    Ok(checkpoint::read_solver(path, "dem_proc", scene, "its DEM state").map_err(RecordError::from)?)
 }
 
 /// The DEM as the run driver steps it.
@@ -457,7 +442,7 @@ impl Solver for DemRun<'_> {
     }
 
     fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
-        let c = DemCheckpointRef {
+        let c: DemCheckpoint<&Fronts, &PackingReport> = DemCheckpoint {
             state: DemState::capture(&self.world),
             held: self.world.held_loads(),
             fronts: &self.front,
@@ -488,7 +473,9 @@ fn summary(r: &mut DemRun<'_>, end: &RunEnd) -> RunSummary {
     let max_bins = (((scene.spec.domain.max[0] - x0) / bin).ceil() as usize).max(1);
     let g = &world.grains;
     let deposit = deposit_profile((0..g.len()).map(|p| (g.pos[p][0], g.pos[p][2] + g.radius[p])), x0, bin, max_bins);
-    let particle_steps = world.step_count as f64 * world.len() as f64;
+    // Over this process's steps (a resumed run's from its checkpoint).
+    let (first_step, first_time) = end.started_at;
+    let particle_steps = (world.step_count - first_step) as f64 * world.len() as f64;
     RunSummary {
         scene: scene.spec.scene.name.clone(),
         method: if r.coupled { "dem_lbm" } else { "dem" }.into(),
@@ -500,7 +487,7 @@ fn summary(r: &mut DemRun<'_>, end: &RunEnd) -> RunSummary {
             particle_steps_per_s: Some(particle_steps / wall.max(1e-9)),
             cell_updates_per_s: None,
             point_updates_per_s: None,
-            wall_per_sim_second: wall / world.time.max(1e-12),
+            wall_per_sim_second: wall / (world.time - first_time).max(1e-12),
         },
         t_ref: scene.reference_time(),
         front: front.all,

@@ -296,16 +296,18 @@ pub fn run(
 
 /// An LBM run's checkpoint ([`Solver::checkpoint`]): the lattice, the
 /// exchange's last header and answer (coupled), what the frames gathered.
-#[derive(Deserialize)]
-struct LbmCheckpoint {
-    state: LbmState,
+/// Written borrowing the lattice (no copy of the populations:
+/// `LbmCheckpoint<LbmStateRef, &Gathered>`), read owning it.
+#[derive(Serialize, Deserialize)]
+struct LbmCheckpoint<S = LbmState, G = Gathered> {
+    state: S,
     steps: u64,
     /// Index and time of the last exchange received.
     header: (u64, f64),
     /// The loads of the last step (a lagged peer takes them after a resume),
     /// in the exchange's recorded form.
     loads: Vec<u8>,
-    gathered: Gathered,
+    gathered: G,
     mass_initial: f64,
     active_initial: usize,
     /// The fluid's pending-excess diagnostics (returns, mass).
@@ -315,21 +317,7 @@ struct LbmCheckpoint {
     held_liquid: HeldLiquid,
 }
 
-#[derive(Serialize)]
-struct LbmCheckpointRef<'a> {
-    state: LbmStateRef<'a>,
-    steps: u64,
-    header: (u64, f64),
-    loads: Vec<u8>,
-    gathered: &'a Gathered,
-    mass_initial: f64,
-    active_initial: usize,
-    returned: (u64, f64),
-    forcing: ForcingMemory,
-    held_liquid: HeldLiquid,
-}
-
-/// [`LbmState`] borrowing the lattice (no copy of the populations).
+/// [`LbmState`] borrowing the lattice.
 #[derive(Serialize)]
 struct LbmStateRef<'a> {
     version: u32,
@@ -353,15 +341,7 @@ fn empty_fluid_state() -> FluidState<f32> {
 }
 
 fn read_checkpoint(path: &Path, scene: &Scene) -> Result<(CheckpointFile, LbmCheckpoint), RunError> {
-    let file = checkpoint::read(path, "lbm_proc", scene).map_err(RecordError::from)?;
-    let c =
-        bincode::serde::decode_from_slice(&file.solver, bincode::config::standard()).map(|(c, _)| c).map_err(|e| {
-            RecordError::from(checkpoint::CheckpointError::Damaged {
-                path: path.to_path_buf(),
-                why: format!("its lattice does not decode ({e}): written by another version of lbm_proc?"),
-            })
-        })?;
-    Ok((file, c))
+    Ok(checkpoint::read_solver(path, "lbm_proc", scene, "its lattice").map_err(RecordError::from)?)
 }
 
 /// The lattice as the run driver steps it.
@@ -489,7 +469,7 @@ impl Solver for LbmRun<'_> {
     }
 
     fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
-        let c = LbmCheckpointRef {
+        let c: LbmCheckpoint<LbmStateRef, &Gathered> = LbmCheckpoint {
             state: LbmStateRef {
                 version: STATE_VERSION,
                 time: self.time,
@@ -529,7 +509,7 @@ impl Solver for LbmRun<'_> {
                 particle_steps_per_s: None,
                 cell_updates_per_s: Some(end.work / wall.max(1e-9)),
                 point_updates_per_s: None,
-                wall_per_sim_second: wall / time.max(1e-12),
+                wall_per_sim_second: wall / (time - end.started_at.1).max(1e-12),
             },
             t_ref: scene.reference_time(),
             front: Vec::new(),

@@ -207,30 +207,18 @@ pub fn run(
 }
 
 /// An MPM run's checkpoint ([`Solver::checkpoint`]): the state, what the
-/// frames gathered and what the set-up measured.
+/// frames gathered and what the set-up measured. Written borrowing the
+/// run's parts (no copy of the point arrays), read owning them.
 #[derive(Serialize, Deserialize)]
-struct MpmCheckpoint {
-    state: MpmState,
-    gathered: Gathered,
-    gravity: GravityPhase,
+struct MpmCheckpoint<S = MpmState, G = Gathered, P = GravityPhase> {
+    state: S,
+    gathered: G,
+    gravity: P,
     porosity_initial: f64,
     soil_top: f64,
     solid_mass0: f64,
     liquid_mass0: f64,
     /// The pore-pressure peak since the last frame.
-    pore_pressure_peak: f64,
-}
-
-/// The same, borrowing the run's parts (no copy of the point arrays).
-#[derive(Serialize)]
-struct MpmCheckpointRef<'a> {
-    state: &'a MpmState,
-    gathered: &'a Gathered,
-    gravity: &'a GravityPhase,
-    porosity_initial: f64,
-    soil_top: f64,
-    solid_mass0: f64,
-    liquid_mass0: f64,
     pore_pressure_peak: f64,
 }
 
@@ -294,8 +282,8 @@ fn run_on_pool(
     }
     let mut solver = match &opts.resume {
         Some(path) => {
-            let file = checkpoint::read(path, "mpm_proc", scene).map_err(RecordError::from)?;
-            let c: MpmCheckpoint = decode_checkpoint(&file.solver, path)?;
+            let (file, c): (_, MpmCheckpoint) =
+                checkpoint::read_solver(path, "mpm_proc", scene, "its MPM state").map_err(RecordError::from)?;
             mpm.state = c.state;
             mpm.apply_gate_fixities();
             mpm.restore_pore_pressure_peak(c.pore_pressure_peak);
@@ -375,15 +363,6 @@ impl<'a> MpmRun<'a> {
     }
 }
 
-fn decode_checkpoint<T: serde::de::DeserializeOwned>(bytes: &[u8], path: &Path) -> Result<T, RunError> {
-    bincode::serde::decode_from_slice(bytes, bincode::config::standard()).map(|(c, _)| c).map_err(|e| {
-        RunError::from(RecordError::from(checkpoint::CheckpointError::Damaged {
-            path: path.to_path_buf(),
-            why: format!("its MPM state does not decode ({e}): written by another version of mpm_proc?"),
-        }))
-    })
-}
-
 impl Solver for MpmRun<'_> {
     type Error = RunError;
 
@@ -426,7 +405,7 @@ impl Solver for MpmRun<'_> {
     }
 
     fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
-        let c = MpmCheckpointRef {
+        let c: MpmCheckpoint<&MpmState, &Gathered, &GravityPhase> = MpmCheckpoint {
             state: &self.mpm.state,
             gathered: &self.gathered,
             gravity: &self.gravity,
@@ -475,8 +454,9 @@ fn summary(r: &mut MpmRun<'_>, end: &RunEnd) -> RunSummary {
         throughput: Throughput {
             particle_steps_per_s: None,
             cell_updates_per_s: None,
-            point_updates_per_s: Some(r.points * steps as f64 / wall.max(1e-9)),
-            wall_per_sim_second: wall / t.max(1e-12),
+            // Over this process's steps (a resumed run's from its checkpoint).
+            point_updates_per_s: Some(r.points * (steps - end.started_at.0) as f64 / wall.max(1e-9)),
+            wall_per_sim_second: wall / (t - end.started_at.1).max(1e-12),
         },
         t_ref: scene.reference_time(),
         front: if s.set.is_empty() { Vec::new() } else { g.front.clone() },

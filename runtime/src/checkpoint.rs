@@ -64,8 +64,6 @@ pub struct DriverState {
     pub frames_at_rest: u32,
     /// Whether the mass has moved yet (rest only counts after).
     pub has_moved: bool,
-    /// Work units done so far.
-    pub work: f64,
 }
 
 /// The exchange's position at a checkpoint ([`crate::coupled::Exchange`]).
@@ -305,6 +303,26 @@ pub fn read(path: &Path, process: &str, scene: &schemas::Scene) -> Result<Checkp
     Ok(file)
 }
 
+/// Reads `process`'s checkpoint for `scene` and decodes its solver part
+/// (bincode, standard config) as `T`; `what` names it in the error ("its
+/// lattice") when it does not decode (another version wrote it).
+pub fn read_solver<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    process: &str,
+    scene: &schemas::Scene,
+    what: &str,
+) -> Result<(CheckpointFile, T), CheckpointError> {
+    let file = read(path, process, scene)?;
+    let solver =
+        bincode::serde::decode_from_slice(&file.solver, bincode::config::standard()).map(|(c, _)| c).map_err(|e| {
+            CheckpointError::Damaged {
+                path: path.to_path_buf(),
+                why: format!("{what} does not decode ({e}): written by another version of {process}?"),
+            }
+        })?;
+    Ok((file, solver))
+}
+
 /// Reads a checkpoint and checks its framing and hash only.
 pub fn read_unchecked(path: &Path) -> Result<CheckpointFile, CheckpointError> {
     let bytes = std::fs::read(path).map_err(|source| CheckpointError::Read { path: path.to_path_buf(), source })?;
@@ -404,7 +422,6 @@ mod tests {
             last_state: None,
             frames_at_rest: 0,
             has_moved: true,
-            work: 1.0,
         }
     }
 

@@ -170,8 +170,12 @@ pub struct RunEnd {
     pub status: RunStatus,
     /// Wall seconds of the loop.
     pub wall: f64,
-    /// Work units done (Σ [`Solver::work_per_step`]).
+    /// Work units done by this loop (Σ [`Solver::work_per_step`]; a
+    /// resumed run's loop counts from its checkpoint).
     pub work: f64,
+    /// The solver's step count and time when this loop began (0, or a
+    /// resumed run's checkpoint): rates are over the steps since.
+    pub started_at: (u64, f64),
     /// Wall seconds spent recording.
     pub recording_seconds: f64,
     /// The exchange's totals, when coupled.
@@ -331,7 +335,9 @@ pub fn drive<'x, S: Solver>(
     let mut failure: Option<S::Error> = None;
     let started = Instant::now();
     let mut last_progress = Instant::now();
-    let DriverState { mut work, mut last_recorded, mut last_state, mut frames_at_rest, mut has_moved, .. } =
+    let started_at = (solver.steps(), solver.time());
+    let mut work = 0.0_f64;
+    let DriverState { mut last_recorded, mut last_state, mut frames_at_rest, mut has_moved, .. } =
         match checkpoints.resumed {
             Some(state) => state,
             None => {
@@ -347,7 +353,6 @@ pub fn drive<'x, S: Solver>(
                     last_state: cadence.state_at_start.then(|| solver.steps()),
                     frames_at_rest: 0,
                     has_moved: false,
-                    work: 0.0,
                 }
             }
         };
@@ -413,7 +418,7 @@ pub fn drive<'x, S: Solver>(
         }
         if let (Some(writer), Some(every)) = (checkpoints.writer.as_mut(), cadence.steps_per_checkpoint) {
             if steps.is_multiple_of(every) {
-                let state = DriverState { steps, time: t, last_recorded, last_state, frames_at_rest, has_moved, work };
+                let state = DriverState { steps, time: t, last_recorded, last_state, frames_at_rest, has_moved };
                 let position = exchange.as_deref().map(|x| x.state());
                 if let Some(r) = rec.recorder() {
                     r.sync()?;
@@ -442,7 +447,7 @@ pub fn drive<'x, S: Solver>(
         record(rec, |rec| solver.record_state(rec))?;
     }
     let figures = exchange.as_deref().map(|x| x.figures());
-    let end = RunEnd { status, wall, work, recording_seconds: rec.seconds, exchange: figures };
+    let end = RunEnd { status, wall, work, started_at, recording_seconds: rec.seconds, exchange: figures };
     let summary = solver.summary(&end);
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
     rec.log(summary.sim_time, log_level::INFO, &solver.closing_line(&summary))?;
@@ -747,7 +752,8 @@ mod tests {
         let mut resumed = Toy::new(speed);
         resumed.steps = 60;
         let r = go(&mut resumed, &mut Checkpoints { writer: None, resumed: Some(file.driver) });
-        assert_eq!((r.status, resumed.steps, r.runout), (s.status, straight.steps, s.runout));
+        assert_eq!((r.status, resumed.steps), (s.status, straight.steps));
+        assert_eq!(r.runout, 10.0, "the work of the resumed loop alone (its rates are over it)");
         assert_eq!(resumed.frames, [70], "no first frame: the interrupted run recorded 60");
         assert_eq!(resumed.states, [70]);
         let _ = std::fs::remove_dir_all(&dir);

@@ -72,6 +72,22 @@ pub fn python_with_mcap() -> Option<PathBuf> {
     (installed && ready(&python)).then_some(python)
 }
 
+/// The Python of [`python_with_mcap`] with `module` importable, pip
+/// installing `package` into it on first use. None where pip cannot.
+pub fn python_with(module: &str, package: &str) -> Option<PathBuf> {
+    let python = python_with_mcap()?;
+    let ready =
+        || Command::new(&python).args(["-c", &format!("import {module}")]).output().is_ok_and(|o| o.status.success());
+    if ready() {
+        return Some(python);
+    }
+    let installed = Command::new(&python)
+        .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check", package])
+        .status()
+        .is_ok_and(|s| s.success());
+    (installed && ready()).then_some(python)
+}
+
 /// The pid of a process named `name` whose command line mentions `arg`.
 pub fn find_process(name: &str, arg: &Path) -> Option<i32> {
     let entries = std::fs::read_dir("/proc").ok()?;

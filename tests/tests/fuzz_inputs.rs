@@ -175,7 +175,6 @@ fn checkpoint_bytes() -> Vec<u8> {
                 last_state: Some(0),
                 frames_at_rest: 0,
                 has_moved: false,
-                work: 7.0,
             };
             let path = w.write(driver, None, |o| o.write_all(&[42u8; 600])).expect("written");
             std::fs::read(path).expect("read back")
