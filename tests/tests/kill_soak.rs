@@ -121,15 +121,25 @@ fn trial(k: usize, name: &str, schedule: &str, fault: Fault, delay: Duration, st
                 text.contains(&format!("coupler: {victim} failed (killed by signal 9")),
                 "trial {k}: the coupler must name {victim}:\n{text}"
             ),
-            Fault::Signal(_) => {
-                assert_eq!(status.code(), Some(130), "trial {k}: an interruption exits 130:\n{text}");
-                assert!(text.contains("interrupted"), "trial {k}: says it was interrupted:\n{text}");
+            Fault::Signal(sig) => {
+                use std::os::unix::process::ExitStatusExt;
+                // A signal in the coupler's first milliseconds, before its
+                // handlers are in place, ends it by the signal's default
+                // action (its children follow: they die with their parent).
+                let before_handlers = status.signal() == Some(sig);
+                assert!(
+                    before_handlers || status.code() == Some(130),
+                    "trial {k}: an interruption exits 130 ({status}):\n{text}"
+                );
+                assert!(before_handlers || text.contains("interrupted"), "trial {k}: says it was interrupted:\n{text}");
             }
         }
     }
-    std::thread::sleep(Duration::from_millis(100));
-    for p in ["dem_proc", "lbm_proc"] {
-        assert!(!process_running(p, &out), "trial {k}: {p} left running after {fault:?}");
+    // The coupler has waited for its children; allow the kernel a moment to reap.
+    let gone = Instant::now();
+    while ["dem_proc", "lbm_proc"].iter().any(|p| process_running(p, &out)) {
+        assert!(gone.elapsed() < Duration::from_secs(2), "trial {k}: a solver left running after {fault:?}");
+        std::thread::sleep(Duration::from_millis(20));
     }
     let recording = out.join("run.mcap");
     if recording.exists() {
