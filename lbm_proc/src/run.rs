@@ -32,7 +32,8 @@ use crate::watchdog::Instability;
 /// Version of the `/lbm/state` bincode layout.
 pub const STATE_VERSION: u32 = 1;
 
-/// Full state, enough to continue a run bit for bit (`/lbm/state`).
+/// Full state, enough to continue a fluid-only run bit for bit
+/// (`/lbm/state`); a coupled run's checkpoint adds the forcing memory.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct LbmState {
     pub version: u32,
