@@ -125,6 +125,39 @@ pub fn initial_fluid(scene: &Scene, setup: &LbmSetup) -> Result<Fluid<f32>, RunE
     Ok(fluid)
 }
 
+/// A run's lattice, its initial liquid mass and active cells: the scene's
+/// initial liquid, or the checkpoint's lattice (moved out of it: a copy
+/// would double the memory) with the rest of the checkpoint.
+type Lattice = (Fluid<f32>, f64, usize, Option<(CheckpointFile, LbmCheckpoint)>);
+
+fn lattice(scene: &Scene, setup: &LbmSetup, resume: Option<&Path>) -> Result<Lattice, RunError> {
+    match resume {
+        Some(path) => {
+            let (file, mut c) = read_checkpoint(path, scene)?;
+            let state = std::mem::replace(&mut c.state.fluid, empty_fluid_state());
+            let mut fluid = Fluid::from_state(state, setup.params).map_err(|e| RunError::Lattice(e.to_string()))?;
+            fluid.restore_returned_excess(c.returned.0, c.returned.1);
+            fluid.restore_forcing_memory(std::mem::take(&mut c.forcing));
+            Ok((fluid, c.mass_initial, c.active_initial, Some((file, c))))
+        }
+        None => {
+            let fluid = initial_fluid(scene, setup)?;
+            let (m, a) = (fluid.liquid_mass(), fluid.active_cells());
+            Ok((fluid, m, a, None))
+        }
+    }
+}
+
+/// The grains' forcing of a coupled scene.
+fn grain_forcing(scene: &Scene, setup: &LbmSetup) -> Result<GrainForcing, RunError> {
+    Ok(GrainForcing::new(
+        Coupling::new(setup.units, setup.origin)
+            .map_err(|source| RunError::Coupling { exchange: 0, source })?
+            .with_gain(scene.spec.coupling.forcing_gain),
+    )
+    .with_added_buoyancy(setup.grain_buoyancy))
+}
+
 /// Runs the scene. `stop` is polled every step; when set the run ends at the
 /// step boundary with status `interrupted` and a complete recording.
 ///
@@ -143,25 +176,7 @@ pub fn run(
     for note in &setup.notes {
         progress.log(note);
     }
-    let resumed = match &opts.resume {
-        Some(path) => Some(read_checkpoint(path, scene)?),
-        None => None,
-    };
-    // The lattice moves out of the checkpoint (a copy would double the memory).
-    let (fluid, mass_initial, active_initial, resumed) = match resumed {
-        Some((file, mut c)) => {
-            let state = std::mem::replace(&mut c.state.fluid, empty_fluid_state());
-            let mut fluid = Fluid::from_state(state, setup.params).map_err(|e| RunError::Lattice(e.to_string()))?;
-            fluid.restore_returned_excess(c.returned.0, c.returned.1);
-            fluid.restore_forcing_memory(std::mem::take(&mut c.forcing));
-            (fluid, c.mass_initial, c.active_initial, Some((file, c)))
-        }
-        None => {
-            let fluid = initial_fluid(scene, &setup)?;
-            let (m, a) = (fluid.liquid_mass(), fluid.active_cells());
-            (fluid, m, a, None)
-        }
-    };
+    let (fluid, mass_initial, active_initial, resumed) = lattice(scene, &setup, opts.resume.as_deref())?;
 
     std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
     let (mcap_path, summary_path) = output_paths(&opts.out_dir);
@@ -211,14 +226,7 @@ pub fn run(
         checkpoints.writer = Some(CheckpointWriter::new(&opts.out_dir, "lbm_proc", scene).map_err(RecordError::from)?);
     }
     let forcing = match peer {
-        Some(_) => Some(
-            GrainForcing::new(
-                Coupling::new(setup.units, setup.origin)
-                    .map_err(|source| RunError::Coupling { exchange: 0, source })?
-                    .with_gain(scene.spec.coupling.forcing_gain),
-            )
-            .with_added_buoyancy(setup.grain_buoyancy),
-        ),
+        Some(_) => Some(grain_forcing(scene, &setup)?),
         None => None,
     };
     let mut fluid = fluid;
