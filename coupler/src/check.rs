@@ -97,7 +97,7 @@ pub fn print(scene: &Scene) {
 }
 
 /// The plans of the solvers the scene's method runs.
-fn plans(scene: &Scene) -> Vec<Plan> {
+pub(crate) fn plans(scene: &Scene) -> Vec<Plan> {
     let s = &scene.spec;
     match scene.method() {
         Method::Mpm => vec![mpm_proc::plan::plan(scene)],

@@ -1,5 +1,6 @@
 //! `coupler`: one command to check, run, supervise and inspect a scene.
 
+mod campaign;
 mod check;
 mod export;
 mod inspect;
@@ -65,6 +66,25 @@ enum Command {
         /// Check the scene as run with this method: `--set scene.method=…`, applied before the other --set values.
         #[arg(long, value_parser = METHODS)]
         method: Option<String>,
+    },
+    /// Run a campaign: every case of a campaign file (e.g. the paper's
+    /// Table 1 matrix, `scenes/ceccato2020`), each a normal run in
+    /// `OUT/cases/<name>`, then `OUT/report.md` with figures. Resumable:
+    /// the same command again skips finished cases and continues stopped ones.
+    Campaign {
+        /// A campaign file, or a folder holding `campaign.toml`.
+        campaign: PathBuf,
+        /// The coarse version of the same matrix (the file's `[quick]`
+        /// overrides): minutes instead of hours, to check the whole chain.
+        #[arg(long)]
+        quick: bool,
+        /// Output directory (default: `runs/campaign-<name>[-quick]`).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Cases run at once, the cores shared evenly among them
+        /// (default: one case per core).
+        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(1..))]
+        jobs: Option<u16>,
     },
     /// Write a recording's points as VTK files for ParaView: grains,
     /// the water's surface, MPM points, each a time series (`.pvd`).
@@ -140,6 +160,11 @@ fn main() -> ExitCode {
                 }
             };
             runtime.block_on(supervise::run(loaded, out, threads, quiet, resume.is_some()))
+        }
+        Command::Campaign { campaign: source, quick, out, jobs } => {
+            let command_line =
+                std::iter::once("coupler".to_string()).chain(std::env::args().skip(1)).collect::<Vec<_>>().join(" ");
+            campaign::run(campaign::Args { source, quick, out, jobs: jobs.map(usize::from) }, command_line)
         }
         Command::Check { scene, set, method } => match load(&scene, &overrides(method, set)) {
             Ok(s) => {

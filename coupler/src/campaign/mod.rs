@@ -1,0 +1,587 @@
+//! `coupler campaign`: a matrix of runs from one campaign file, each a
+//! normal `coupler run` in its own directory, then a report with figures.
+//!
+//! A campaign file (`scenes/ceccato2020/campaign.toml`) names its cases
+//! (scene files, each with optional `--set` values) and the overrides of
+//! `--quick`, a coarse version of the same matrix. The campaign is
+//! resumable: a case whose `summary.json` says it finished is not rerun,
+//! one that was stopped continues from its last checkpoint (or afresh
+//! when it wrote none), and the report is rewritten from every summary at
+//! the end of each invocation.
+
+mod figures;
+mod report;
+
+use std::collections::BTreeSet;
+use std::io::{Read, Seek, SeekFrom};
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitCode, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use serde::Deserialize;
+
+use schemas::scene::{Condition, Scene};
+use schemas::summary::{RunStatus, RunSummary};
+use schemas::{Method, EXIT_BAD_SCENE};
+
+/// What `coupler campaign` was asked.
+#[derive(Debug, Clone)]
+pub struct Args {
+    /// A campaign file, or a folder holding `campaign.toml`.
+    pub source: PathBuf,
+    pub quick: bool,
+    pub out: Option<PathBuf>,
+    pub jobs: Option<usize>,
+}
+
+/// The campaign file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CampaignFile {
+    campaign: Header,
+    /// Cases beyond `campaign.scenes`: a scene with `--set` values.
+    #[serde(default)]
+    case: Vec<CaseSpec>,
+    #[serde(default)]
+    quick: QuickOverrides,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Header {
+    name: String,
+    #[serde(default)]
+    description: String,
+    /// Scene files (relative to the campaign file), each a case named by
+    /// its `scene.name`.
+    #[serde(default)]
+    scenes: Vec<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CaseSpec {
+    name: String,
+    scene: String,
+    #[serde(default)]
+    set: Vec<String>,
+}
+
+/// `--set` values of `--quick`: `all` for every case, then those of each
+/// solver the case runs (`dem`: dem_proc, `lbm`: lbm_proc, `mpm`: mpm_proc).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct QuickOverrides {
+    #[serde(default)]
+    all: Vec<String>,
+    #[serde(default)]
+    dem: Vec<String>,
+    #[serde(default)]
+    lbm: Vec<String>,
+    #[serde(default)]
+    mpm: Vec<String>,
+}
+
+impl QuickOverrides {
+    fn for_method(&self, method: Method) -> Vec<String> {
+        let mut set = self.all.clone();
+        if matches!(method, Method::DemDry | Method::DemLbm) {
+            set.extend(self.dem.iter().cloned());
+        }
+        if matches!(method, Method::LbmFluid | Method::DemLbm) {
+            set.extend(self.lbm.iter().cloned());
+        }
+        if method == Method::Mpm {
+            set.extend(self.mpm.iter().cloned());
+        }
+        set
+    }
+}
+
+/// One run of the campaign, resolved and validated.
+#[derive(Debug, Clone)]
+pub struct Case {
+    pub name: String,
+    pub scene_path: PathBuf,
+    /// Every `--set` value the run gets (the case's, then `--quick`'s).
+    pub set: Vec<String>,
+    pub method: Method,
+    pub condition: Condition,
+    /// L0 and H0, m.
+    pub column_length: f64,
+    pub column_height: f64,
+    /// The largest grain diameter, m (the pile edge's height threshold).
+    pub grain_diameter: f64,
+    /// The solvers' own estimate of the run's wall time at full speed, s.
+    pub estimate_s: f64,
+    /// `OUT/cases/<name>`.
+    pub dir: PathBuf,
+}
+
+impl Case {
+    /// `dem`/`dem_lbm` runs are DEM(-LBM), `mpm` runs MPM: the two methods
+    /// the report sets side by side.
+    pub fn family(&self) -> &'static str {
+        match self.method {
+            Method::Mpm => "MPM",
+            Method::DemDry | Method::DemLbm => "DEM",
+            Method::LbmFluid => "LBM",
+        }
+    }
+
+    /// Aspect ratio H0 / L0.
+    pub fn aspect(&self) -> f64 {
+        self.column_height / self.column_length
+    }
+
+    /// The case's summary when it finished: completed, at rest, or
+    /// stopped by its watchdog (an outcome, not an accident).
+    pub fn finished_summary(&self) -> Option<RunSummary> {
+        let text = std::fs::read_to_string(self.dir.join("summary.json")).ok()?;
+        let summary: RunSummary = serde_json::from_str(&text).ok()?;
+        matches!(summary.status, RunStatus::Completed | RunStatus::AtRest | RunStatus::Unstable).then_some(summary)
+    }
+
+    /// Whether the case's processes left a checkpoint to continue from.
+    fn has_checkpoint(&self) -> bool {
+        std::fs::read_dir(self.dir.join("checkpoints"))
+            .map(|d| d.flatten().any(|e| e.path().extension().is_some_and(|x| x == "ckpt")))
+            .unwrap_or(false)
+            && self.dir.join("scene.toml").exists()
+    }
+}
+
+/// A loaded campaign.
+#[derive(Debug)]
+pub struct Campaign {
+    pub name: String,
+    pub description: String,
+    pub file: PathBuf,
+    pub quick: bool,
+    pub out: PathBuf,
+    pub cases: Vec<Case>,
+}
+
+/// Reads and checks the campaign file and every case's scene before any
+/// run starts: a bad case stops the campaign with its name and reason.
+pub fn load(args: &Args) -> Result<Campaign, String> {
+    let file = if args.source.is_dir() { args.source.join("campaign.toml") } else { args.source.clone() };
+    let text = std::fs::read_to_string(&file).map_err(|e| {
+        format!(
+            "cannot read campaign file {}: {e} (give a campaign file, or a folder holding campaign.toml)",
+            file.display()
+        )
+    })?;
+    let spec: CampaignFile = toml::from_str(&text).map_err(|e| format!("{}: {e}", file.display()))?;
+    let base = file.parent().map(Path::to_path_buf).unwrap_or_default();
+    let out = args.out.clone().unwrap_or_else(|| {
+        PathBuf::from("runs").join(format!("campaign-{}{}", spec.campaign.name, if args.quick { "-quick" } else { "" }))
+    });
+    let listed = spec.campaign.scenes.iter().map(|s| (None, s.clone(), Vec::new()));
+    let extra = spec.case.iter().map(|c| (Some(c.name.clone()), c.scene.clone(), c.set.clone()));
+    let mut cases = Vec::new();
+    let mut names = BTreeSet::new();
+    for (name, scene_file, mut set) in listed.chain(extra) {
+        let scene_path = base.join(&scene_file);
+        let scene = Scene::load(&scene_path, &set).map_err(|e| format!("case {scene_file}: invalid scene:\n{e}"))?;
+        if args.quick {
+            set.extend(spec.quick.for_method(scene.method()));
+        }
+        let scene = Scene::load(&scene_path, &set)
+            .map_err(|e| format!("case {scene_file}: invalid scene under --quick's values:\n{e}"))?;
+        let name = name.unwrap_or_else(|| scene.spec.scene.name.clone());
+        if !names.insert(name.clone()) {
+            return Err(format!("{}: two cases are named {name:?}: give the [[case]] another name", file.display()));
+        }
+        let a = &scene.spec.analysis;
+        cases.push(Case {
+            dir: out.join("cases").join(&name),
+            name,
+            method: scene.method(),
+            condition: a.condition,
+            column_length: a.column_length,
+            column_height: a.column_height,
+            grain_diameter: scene.spec.particles.iter().map(|p| p.diameter).fold(0.0, f64::max),
+            estimate_s: crate::check::plans(&scene).iter().map(|p| p.wall_estimate).filter(|w| w.is_finite()).sum(),
+            scene_path,
+            set,
+        });
+    }
+    if cases.is_empty() {
+        return Err(format!(
+            "{}: no cases: list scene files in campaign.scenes or add [[case]] tables",
+            file.display()
+        ));
+    }
+    Ok(Campaign {
+        name: spec.campaign.name,
+        description: spec.campaign.description,
+        file,
+        quick: args.quick,
+        out,
+        cases,
+    })
+}
+
+/// What `OUT/campaign.json` records, so that a campaign continued in the
+/// same folder is the same campaign.
+#[derive(Debug, serde::Serialize, Deserialize, PartialEq)]
+struct Marker {
+    name: String,
+    quick: bool,
+}
+
+fn claim_output(campaign: &Campaign) -> Result<(), String> {
+    let path = campaign.out.join("campaign.json");
+    let marker = Marker { name: campaign.name.clone(), quick: campaign.quick };
+    if let Ok(text) = std::fs::read_to_string(&path) {
+        let old: Marker = serde_json::from_str(&text)
+            .map_err(|e| format!("{} is not a campaign's marker ({e}): give another --out", path.display()))?;
+        if old != marker {
+            let kind = |m: &Marker| format!("{}{}", m.name, if m.quick { " --quick" } else { "" });
+            return Err(format!(
+                "{} holds the campaign {}, not {}: give another --out",
+                campaign.out.display(),
+                kind(&old),
+                kind(&marker)
+            ));
+        }
+    }
+    std::fs::create_dir_all(campaign.out.join("cases"))
+        .map_err(|e| format!("cannot create {}: {e}", campaign.out.display()))?;
+    std::fs::write(&path, serde_json::to_string_pretty(&marker).expect("marker serialises"))
+        .map_err(|e| format!("cannot write {}: {e}", path.display()))
+}
+
+/// A case being run.
+struct Running {
+    index: usize,
+    child: Child,
+    started: Instant,
+    resumed: bool,
+}
+
+/// How the cases share the machine: `jobs` at once, `threads` each.
+#[derive(Debug, Clone, Copy)]
+pub struct Schedule {
+    pub jobs: usize,
+    pub threads: usize,
+}
+
+impl Schedule {
+    /// Two one-thread cases at once on a 2-core machine ran the quick
+    /// matrix in 163 s, one two-thread case at a time in 186 s (a case's
+    /// second thread gives it 1.77×, a second case 2×; docs/campaign.md):
+    /// one case per core by default. The results do not depend on it.
+    fn new(jobs: Option<usize>) -> Self {
+        let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+        let jobs = jobs.unwrap_or(cores).max(1);
+        Schedule { jobs, threads: (cores / jobs).max(1) }
+    }
+}
+
+/// Runs `coupler campaign`.
+pub fn run(args: Args, command_line: String) -> ExitCode {
+    let campaign = match load(&args) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("coupler: {e}");
+            return ExitCode::from(EXIT_BAD_SCENE as u8);
+        }
+    };
+    if let Err(e) = claim_output(&campaign) {
+        eprintln!("coupler: {e}");
+        return ExitCode::FAILURE;
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        if let Err(e) = signal_hook::flag::register(signal, Arc::clone(&stop)) {
+            eprintln!("coupler: cannot install the signal handler: {e}");
+            return ExitCode::FAILURE;
+        }
+    }
+    let schedule = Schedule::new(args.jobs);
+    let started = Instant::now();
+    let outcome = execute(&campaign, schedule, &stop);
+    let wall = started.elapsed().as_secs_f64();
+    let finished: Vec<Option<RunSummary>> = campaign.cases.iter().map(Case::finished_summary).collect();
+    let context = report::Context { command_line, schedule, wall_seconds: wall, interrupted: outcome.interrupted };
+    match report::write(&campaign, &finished, &context) {
+        Ok(path) => eprintln!("coupler: report {}", path.display()),
+        Err(e) => {
+            eprintln!("coupler: {e}");
+            return ExitCode::FAILURE;
+        }
+    }
+    let done = finished.iter().flatten().count();
+    if outcome.interrupted {
+        eprintln!(
+            "coupler: campaign interrupted after {wall:.0} s with {done} of {} cases finished; run the same command again to continue",
+            campaign.cases.len()
+        );
+        return ExitCode::from(130);
+    }
+    let bad: Vec<&str> = campaign
+        .cases
+        .iter()
+        .zip(&finished)
+        .filter(|(_, s)| !matches!(s, Some(s) if matches!(s.status, RunStatus::Completed | RunStatus::AtRest)))
+        .map(|(c, _)| c.name.as_str())
+        .collect();
+    if bad.is_empty() {
+        eprintln!("coupler: campaign {} finished: {done} cases in {wall:.0} s", campaign.name);
+        ExitCode::SUCCESS
+    } else {
+        eprintln!(
+            "coupler: campaign {}: {} of {} cases did not complete ({}); see OUT/cases/<name>.log",
+            campaign.name,
+            bad.len(),
+            campaign.cases.len(),
+            bad.join(", ")
+        );
+        ExitCode::FAILURE
+    }
+}
+
+struct Outcome {
+    interrupted: bool,
+}
+
+/// Runs every case not yet finished, `schedule.jobs` at a time, longest
+/// estimate first (the last to start are the short ones, so the cores
+/// finish together).
+fn execute(campaign: &Campaign, schedule: Schedule, stop: &AtomicBool) -> Outcome {
+    let total = campaign.cases.len();
+    let mut pending: Vec<usize> = (0..total).filter(|&i| campaign.cases[i].finished_summary().is_none()).collect();
+    pending.sort_by(|&a, &b| campaign.cases[b].estimate_s.total_cmp(&campaign.cases[a].estimate_s));
+    let skipped = total - pending.len();
+    eprintln!(
+        "coupler: campaign {}{}: {total} cases, {skipped} already finished, {} to run, {} at a time with {} thread{} each; output {}",
+        campaign.name,
+        if campaign.quick { " (quick)" } else { "" },
+        pending.len(),
+        schedule.jobs,
+        schedule.threads,
+        if schedule.threads == 1 { "" } else { "s" },
+        campaign.out.display()
+    );
+    let mut progress = Progress::new(campaign, &pending);
+    let mut running: Vec<Running> = Vec::new();
+    // A case whose resume failed is run afresh, once.
+    let mut fresh_after_failed_resume = BTreeSet::new();
+    let mut queue: std::collections::VecDeque<usize> = pending.into();
+    let mut last_report = Instant::now();
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            interrupt(&mut running, campaign);
+            return Outcome { interrupted: true };
+        }
+        while running.len() < schedule.jobs {
+            let Some(index) = queue.pop_front() else { break };
+            let case = &campaign.cases[index];
+            let resume = case.has_checkpoint() && !fresh_after_failed_resume.contains(&index);
+            match spawn(case, schedule.threads, resume) {
+                Ok(child) => {
+                    eprintln!(
+                        "coupler: [{}/{total}] {} {}",
+                        progress.done + running.len() + 1 + skipped,
+                        case.name,
+                        if resume { "resumed from its checkpoint" } else { "started" }
+                    );
+                    running.push(Running { index, child, started: Instant::now(), resumed: resume });
+                }
+                Err(e) => {
+                    eprintln!("coupler: {}: cannot start: {e}", case.name);
+                    progress.finish(index, 0.0);
+                }
+            }
+        }
+        if running.is_empty() {
+            return Outcome { interrupted: false };
+        }
+        std::thread::sleep(Duration::from_millis(100));
+        let mut i = 0;
+        while i < running.len() {
+            match running[i].child.try_wait() {
+                Ok(Some(_)) | Err(_) => {
+                    let r = running.swap_remove(i);
+                    let case = &campaign.cases[r.index];
+                    let elapsed = r.started.elapsed().as_secs_f64();
+                    let summary = case.finished_summary();
+                    if summary.is_none() && r.resumed && !stop.load(Ordering::Relaxed) {
+                        eprintln!("coupler: {}: its resume failed (see its log); running it afresh", case.name);
+                        fresh_after_failed_resume.insert(r.index);
+                        queue.push_front(r.index);
+                        continue;
+                    }
+                    progress.finish(r.index, elapsed);
+                    eprintln!("coupler: {} {}", case.name, outcome_line(case, summary.as_ref(), elapsed));
+                    eprintln!("coupler: {}", progress.line(&running, schedule));
+                    last_report = Instant::now();
+                }
+                Ok(None) => i += 1,
+            }
+        }
+        if last_report.elapsed() > Duration::from_secs(60) {
+            eprintln!("coupler: {}", progress.line(&running, schedule));
+            last_report = Instant::now();
+        }
+    }
+}
+
+fn outcome_line(case: &Case, summary: Option<&RunSummary>, elapsed: f64) -> String {
+    match summary {
+        Some(s) => {
+            format!("{} in {elapsed:.0} s at t = {:.2} t_ref: runout {:.3}", s.status, s.sim_time / s.t_ref, s.runout)
+        }
+        None => format!(
+            "did not finish ({elapsed:.0} s): see {}",
+            case.dir.with_file_name(format!("{}.log", case.name)).display()
+        ),
+    }
+}
+
+/// Starts `coupler run` for one case: its own process group (a Ctrl-C at
+/// the terminal reaches the campaign, which passes it on once), and a
+/// SIGTERM if the campaign dies, so no run outlives it.
+fn spawn(case: &Case, threads: usize, resume: bool) -> std::io::Result<Child> {
+    let exe = std::env::current_exe()?;
+    std::fs::create_dir_all(case.dir.parent().expect("a case dir has a parent"))?;
+    let log = std::fs::File::create(case.dir.with_file_name(format!("{}.log", case.name)))?;
+    let mut cmd = Command::new(exe);
+    cmd.arg("run");
+    if resume {
+        cmd.arg("--resume").arg(&case.dir);
+    } else {
+        // A case run afresh starts from nothing its earlier attempt left.
+        let _ = std::fs::remove_file(case.dir.join("summary.json"));
+        cmd.arg(&case.scene_path).arg("--out").arg(&case.dir);
+        for s in &case.set {
+            cmd.arg("--set").arg(s);
+        }
+    }
+    cmd.arg("--quiet").arg("--threads").arg(threads.to_string());
+    cmd.stdin(Stdio::null()).stdout(log.try_clone()?).stderr(log).process_group(0);
+    // SAFETY: prctl is async-signal-safe; the closure touches no memory of
+    // the parent's.
+    unsafe {
+        cmd.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    cmd.spawn()
+}
+
+/// Passes the stop on to every running case (each ends its run and
+/// keeps what it recorded and its checkpoints), and waits for them.
+fn interrupt(running: &mut [Running], campaign: &Campaign) {
+    eprintln!("coupler: stopping {} running case(s); each keeps its recording and checkpoints", running.len());
+    for r in running.iter() {
+        // SAFETY: kill with a pid of our own child.
+        unsafe { libc::kill(r.child.id() as i32, libc::SIGINT) };
+    }
+    for r in running.iter_mut() {
+        let _ = r.child.wait();
+        eprintln!("coupler: {} stopped", campaign.cases[r.index].name);
+    }
+}
+
+/// Progress over the whole campaign and its ETA: the cases' own estimates
+/// (`coupler check`'s), scaled by how long the finished cases took against
+/// theirs, and the running cases' progress lines (`t = … / … s`).
+struct Progress<'a> {
+    campaign: &'a Campaign,
+    done: usize,
+    to_run: usize,
+    remaining_estimate: f64,
+    spent: f64,
+    spent_estimate: f64,
+}
+
+impl<'a> Progress<'a> {
+    fn new(campaign: &'a Campaign, pending: &[usize]) -> Self {
+        Progress {
+            campaign,
+            done: 0,
+            to_run: pending.len(),
+            remaining_estimate: pending.iter().map(|&i| campaign.cases[i].estimate_s).sum(),
+            spent: 0.0,
+            spent_estimate: 0.0,
+        }
+    }
+
+    fn finish(&mut self, index: usize, elapsed: f64) {
+        let estimate = self.campaign.cases[index].estimate_s;
+        self.done += 1;
+        self.remaining_estimate -= estimate;
+        if elapsed > 0.0 && estimate > 0.0 {
+            self.spent += elapsed;
+            self.spent_estimate += estimate;
+        }
+    }
+
+    fn line(&self, running: &[Running], schedule: Schedule) -> String {
+        // Wall seconds per estimated second: 1 until a case has finished.
+        let scale = if self.spent_estimate > 0.0 { self.spent / self.spent_estimate } else { 1.0 };
+        let mut left = self.remaining_estimate * scale;
+        let mut now = Vec::new();
+        for r in running {
+            let case = &self.campaign.cases[r.index];
+            let elapsed = r.started.elapsed().as_secs_f64();
+            let fraction = run_fraction(&case.dir.with_file_name(format!("{}.log", case.name)));
+            let remaining = match fraction {
+                Some(f) if f > 0.02 => elapsed * (1.0 - f) / f,
+                _ => (case.estimate_s * scale - elapsed).max(0.0),
+            };
+            // The running case's estimate is in `remaining_estimate`:
+            // replace it by what its own progress says.
+            left += remaining - case.estimate_s * scale;
+            now.push(match fraction {
+                Some(f) => format!("{} {:.0} %", case.name, 100.0 * f),
+                None => format!("{} {elapsed:.0} s", case.name),
+            });
+        }
+        let eta = left.max(0.0) / schedule.jobs as f64;
+        format!(
+            "{} of {} done, running: {}; ETA {}",
+            self.done,
+            self.to_run,
+            if now.is_empty() { "none".to_string() } else { now.join(", ") },
+            human_seconds(eta)
+        )
+    }
+}
+
+/// The share of its simulated time a running case has reached, from the
+/// last `t = A / B s` of its log (the solvers' quiet progress lines).
+fn run_fraction(log: &Path) -> Option<f64> {
+    let mut file = std::fs::File::open(log).ok()?;
+    let len = file.metadata().ok()?.len();
+    file.seek(SeekFrom::Start(len.saturating_sub(4096))).ok()?;
+    let mut bytes = Vec::new();
+    file.read_to_end(&mut bytes).ok()?;
+    // The cut may fall inside a character.
+    let tail = String::from_utf8_lossy(&bytes);
+    tail.rmatch_indices("t = ").find_map(|(at, _)| {
+        let (now, rest) = tail[at + 4..].split_once(" / ")?;
+        let end = rest.split_whitespace().next()?;
+        let (now, end): (f64, f64) = (now.trim().parse().ok()?, end.parse().ok()?);
+        (end > 0.0).then(|| (now / end).clamp(0.0, 1.0))
+    })
+}
+
+fn human_seconds(s: f64) -> String {
+    if s < 90.0 {
+        format!("{s:.0} s")
+    } else if s < 5400.0 {
+        format!("{:.0} min", s / 60.0)
+    } else {
+        format!("{:.1} h", s / 3600.0)
+    }
+}

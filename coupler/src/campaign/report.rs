@@ -1,0 +1,531 @@
+//! `OUT/report.md`: every run of a campaign in one table, the paper's
+//! figures drawn from the runs' summaries, and the two methods side by
+//! side. Written from the `summary.json` files alone, so it can be
+//! rewritten at any time from what has finished.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use schemas::measures::FrontSample;
+use schemas::scene::Condition;
+use schemas::summary::RunSummary;
+
+use super::figures::{Chart, Series, Stroke, PALETTE};
+use super::{Campaign, Case, Schedule};
+
+/// How the campaign was run, for the report's header.
+#[derive(Debug, Clone)]
+pub struct Context {
+    pub command_line: String,
+    pub schedule: Schedule,
+    /// Wall time of this invocation, s.
+    pub wall_seconds: f64,
+    pub interrupted: bool,
+}
+
+/// Normalised times at which the report reads the fronts.
+pub const FRONT_TIMES: [f64; 3] = [1.0, 2.0, 4.0];
+
+/// One finished run and the measures the report takes from it.
+#[derive(Debug, Clone)]
+pub struct Row<'a> {
+    pub case: &'a Case,
+    pub summary: &'a RunSummary,
+}
+
+impl Row<'_> {
+    /// The mass front at `t_norm`, linearly between samples; NaN outside the run.
+    pub fn front_at(&self, t_norm: f64) -> f64 {
+        interpolate(&self.summary.front, t_norm)
+    }
+
+    /// Where the deposit falls below one grain diameter: the DEM's own
+    /// measure (`runout_pile`), and the same rule on the MPM's profile.
+    pub fn pile_edge(&self) -> f64 {
+        if let Some(p) = self.summary.runout_pile {
+            return p;
+        }
+        let dep = &self.summary.deposit;
+        if dep.len() < 2 || self.case.grain_diameter <= 0.0 {
+            return f64::NAN;
+        }
+        let bin = dep[1][0] - dep[0][0];
+        let edge = dep
+            .iter()
+            .find(|p| p[1] < self.case.grain_diameter)
+            .map_or(dep[dep.len() - 1][0] + bin / 2.0, |p| p[0] - bin / 2.0);
+        (edge - self.case.column_length) / self.case.column_length
+    }
+
+    pub fn liquid_front_end(&self) -> f64 {
+        self.summary.liquid_front.last().map_or(f64::NAN, |f| f.x_norm)
+    }
+
+    pub fn wall(&self) -> f64 {
+        self.summary.wall_seconds_total.unwrap_or(self.summary.wall_seconds)
+    }
+
+    /// Relative change of the liquid's mass over the run (the solids'
+    /// are conserved by construction in both methods).
+    pub fn liquid_mass_drift(&self) -> f64 {
+        match (&self.summary.lbm, &self.summary.mpm) {
+            (Some(l), _) => l.mass_relative_change,
+            (None, Some(m)) if m.liquid_points > 0 => m.liquid_mass_relative_change,
+            _ => f64::NAN,
+        }
+    }
+
+    pub fn throughput(&self) -> String {
+        let t = &self.summary.throughput;
+        let mut parts = Vec::new();
+        if let Some(p) = t.particle_steps_per_s {
+            parts.push(format!("{p:.2e} particle-steps/s"));
+        }
+        if let Some(c) = t.cell_updates_per_s {
+            parts.push(format!("{:.1} MLUPS", c / 1e6));
+        }
+        if let Some(p) = t.point_updates_per_s {
+            parts.push(format!("{p:.2e} point-updates/s"));
+        }
+        parts.join(", ")
+    }
+}
+
+/// Linear interpolation of a front in normalised time; NaN outside it.
+pub fn interpolate(front: &[FrontSample], t_norm: f64) -> f64 {
+    let i = front.partition_point(|f| f.t_norm < t_norm);
+    match (i.checked_sub(1).and_then(|j| front.get(j)), front.get(i)) {
+        (_, Some(b)) if b.t_norm == t_norm => b.x_norm,
+        (Some(a), Some(b)) => a.x_norm + (b.x_norm - a.x_norm) * (t_norm - a.t_norm) / (b.t_norm - a.t_norm),
+        _ => f64::NAN,
+    }
+}
+
+fn condition_word(c: Condition) -> &'static str {
+    match c {
+        Condition::Dry => "dry",
+        Condition::Saturated => "saturated",
+        Condition::Liquid => "liquid",
+    }
+}
+
+/// Runs of one method, condition and column height (several: seeds).
+type GroupKey = (Condition, &'static str, u64);
+
+fn key(row: &Row) -> GroupKey {
+    (row.case.condition, row.case.family(), (row.case.column_height * 1e6).round() as u64)
+}
+
+fn number(x: f64, digits: usize) -> String {
+    if x.is_finite() {
+        format!("{x:.digits$}")
+    } else {
+        "–".into()
+    }
+}
+
+/// Mean, least and largest of the finite values.
+fn spread(values: impl Iterator<Item = f64>) -> Option<(f64, f64, f64, usize)> {
+    let v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    Some((
+        mean,
+        v.iter().copied().fold(f64::INFINITY, f64::min),
+        v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        v.len(),
+    ))
+}
+
+fn machine() -> String {
+    let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let model = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|c| {
+            c.lines()
+                .find_map(|l| l.strip_prefix("model name").map(|m| m.trim_start_matches([' ', '\t', ':']).to_string()))
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    format!("{cores} cores ({model})")
+}
+
+/// Writes `OUT/report.md` and `OUT/figures/*.{svg,png}`; returns the report's path.
+pub fn write(campaign: &Campaign, summaries: &[Option<RunSummary>], ctx: &Context) -> Result<PathBuf, String> {
+    let rows: Vec<Row> = campaign
+        .cases
+        .iter()
+        .zip(summaries)
+        .filter_map(|(case, s)| s.as_ref().map(|summary| Row { case, summary }))
+        .collect();
+    let figures = campaign.out.join("figures");
+    std::fs::create_dir_all(&figures).map_err(|e| format!("cannot create {}: {e}", figures.display()))?;
+    let mut md = String::new();
+    header(&mut md, campaign, &rows, ctx);
+    runs_table(&mut md, campaign, summaries);
+    fronts_section(&mut md, &rows, &figures)?;
+    runout_section(&mut md, &rows, &figures)?;
+    deposits_section(&mut md, &rows, &figures)?;
+    methods_table(&mut md, &rows);
+    md.push_str(
+        "\n## Not in this report yet\n\nSnapshots of the column (Figs. 2, 4, 5, 9), coordination-number \
+         distributions (Figs. 6–7), the MPM's fluidised share over time (Fig. 8), the drag study (Fig. 13) \
+         and speed against error: see issue 22. `coupler export RUN --vtk` writes any run's grains, \
+         water surface and MPM points for ParaView.\n",
+    );
+    let path = campaign.out.join("report.md");
+    std::fs::write(&path, md).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    Ok(path)
+}
+
+fn header(md: &mut String, campaign: &Campaign, rows: &[Row], ctx: &Context) {
+    let _ = writeln!(md, "# Campaign {}{}\n", campaign.name, if campaign.quick { " (quick)" } else { "" });
+    if !campaign.description.is_empty() {
+        let _ = writeln!(md, "{}\n", campaign.description);
+    }
+    if campaign.quick {
+        md.push_str(
+            "> **Quick form**: a coarse version of the matrix (`[quick]` of the campaign file) that checks the \
+             whole chain in minutes. Its numbers are not the study's.\n\n",
+        );
+    }
+    let cases_wall: f64 = rows.iter().map(Row::wall).sum();
+    let _ = writeln!(
+        md,
+        "Made by `{}` from `{}` on {}, {} case(s) at a time with {} thread(s) each. \
+         {} of {} cases finished{}. This invocation took {:.0} s; the finished runs' own wall times sum to {:.0} s.\n",
+        ctx.command_line,
+        campaign.file.display(),
+        machine(),
+        ctx.schedule.jobs,
+        ctx.schedule.threads,
+        rows.len(),
+        campaign.cases.len(),
+        if ctx.interrupted { " (the campaign was interrupted: run the same command again to continue)" } else { "" },
+        ctx.wall_seconds,
+        cases_wall
+    );
+    md.push_str(
+        "Fronts are normalised as in the paper: (X_f − L0)/L0 against t/t_ref, t_ref = √(H0/g) dry and \
+         √(H0/g′) saturated; X_f leaves 0.5 % of the solid mass beyond it. The *pile edge* is where the \
+         deposit's height falls below one grain diameter. DEM means DEM (dry) or DEM–LBM (saturated).\n\n",
+    );
+}
+
+fn runs_table(md: &mut String, campaign: &Campaign, summaries: &[Option<RunSummary>]) {
+    md.push_str("## Runs\n\n");
+    md.push_str(
+        "| case | method | condition | a | status | t_end / t_ref | wall s | throughput | runout | pile edge | \
+         front at 1 / 2 / 4 t_ref | liquid front | liquid mass drift | peak Mach |\n",
+    );
+    md.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    for (case, summary) in campaign.cases.iter().zip(summaries) {
+        let Some(summary) = summary else {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {:.2} | not finished | | | | | | | | | |",
+                case.name,
+                case.method.name(),
+                condition_word(case.condition),
+                case.aspect()
+            );
+            continue;
+        };
+        let row = Row { case, summary };
+        let fronts: Vec<String> = FRONT_TIMES.iter().map(|&t| number(row.front_at(t), 2)).collect();
+        let mach = summary.lbm.as_ref().map_or(f64::NAN, |l| l.max_mach);
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {:.2} | {} | {:.2} | {:.1} | {} | {} | {} | {} | {} | {} | {} |",
+            case.name,
+            case.method.name(),
+            condition_word(case.condition),
+            case.aspect(),
+            summary.status,
+            summary.sim_time / summary.t_ref,
+            row.wall(),
+            row.throughput(),
+            number(summary.runout, 3),
+            number(row.pile_edge(), 3),
+            fronts.join(" / "),
+            number(row.liquid_front_end(), 3),
+            if row.liquid_mass_drift().is_finite() { format!("{:.1e}", row.liquid_mass_drift()) } else { "–".into() },
+            number(mach, 3),
+        );
+    }
+    md.push('\n');
+}
+
+/// Figure file names are the stem; the report links the SVG and the PNG.
+fn figure(md: &mut String, stem: &str, alt: &str) {
+    let _ = writeln!(md, "![{alt}](figures/{stem}.svg)\n\n[PNG](figures/{stem}.png)\n");
+}
+
+fn groups<'a>(rows: &'a [Row<'a>]) -> BTreeMap<GroupKey, Vec<&'a Row<'a>>> {
+    let mut g: BTreeMap<GroupKey, Vec<&Row>> = BTreeMap::new();
+    for r in rows {
+        g.entry(key(r)).or_default().push(r);
+    }
+    g
+}
+
+fn front_points(front: &[FrontSample]) -> Vec<(f64, f64)> {
+    front.iter().map(|f| (f.t_norm, f.x_norm)).collect()
+}
+
+fn family_color(family: &str) -> plotters::style::RGBColor {
+    if family == "MPM" {
+        PALETTE[1]
+    } else {
+        PALETTE[0]
+    }
+}
+
+fn fronts_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), String> {
+    md.push_str(
+        "## Fronts (the paper's Figs. 3 and 10)\n\nEach case with both methods: the solid front (solid line) \
+         and the liquid front (dashed).\n\n",
+    );
+    // Cases: one condition and column height, every method and seed.
+    let mut cases: BTreeMap<(Condition, u64), Vec<&Row>> = BTreeMap::new();
+    for r in rows {
+        let (c, _, h) = key(r);
+        cases.entry((c, h)).or_default().push(r);
+    }
+    for ((condition, h_um), runs) in &cases {
+        let h0 = *h_um as f64 * 1e-6;
+        let a = runs[0].case.aspect();
+        let mut series = Vec::new();
+        let mut labelled = std::collections::BTreeSet::new();
+        for r in runs {
+            let family = r.case.family();
+            let color = family_color(family);
+            let first = labelled.insert(family);
+            let label = |what: &str| if first { format!("{family} {what}") } else { String::new() };
+            series.push(Series::new(label("solid front"), front_points(&r.summary.front), color, Stroke::Solid));
+            if !r.summary.liquid_front.is_empty() {
+                series.push(Series::new(
+                    label("liquid front"),
+                    front_points(&r.summary.liquid_front),
+                    color,
+                    Stroke::Dashed,
+                ));
+            }
+        }
+        let stem = format!("front_{}_h{:03}", condition_word(*condition), (h0 * 1000.0).round() as u64);
+        Chart {
+            title: format!("{}, H0 = {:.2} m, a = {a:.2}", capitalised(condition_word(*condition)), h0),
+            x_label: "t / t_ref".into(),
+            y_label: "(X_f − L0) / L0".into(),
+            series,
+        }
+        .write(&dir.join(&stem))?;
+        figure(md, &stem, &format!("fronts, {} a = {a:.2}", condition_word(*condition)));
+    }
+    // The paper's layout: every aspect ratio on one figure, per condition and method.
+    for ((condition, family), runs) in by_condition_and_family(rows) {
+        let series = aspect_series(&runs, |r| front_points(&r.summary.front), Stroke::Solid);
+        let stem = format!("fronts_{}_{}", condition_word(condition), family.to_lowercase());
+        Chart {
+            title: format!("{} fronts, {}", family, condition_word(condition)),
+            x_label: "t / t_ref".into(),
+            y_label: "(X_f − L0) / L0".into(),
+            series,
+        }
+        .write(&dir.join(&stem))?;
+        figure(md, &stem, &format!("{family} fronts, {}, every aspect ratio", condition_word(condition)));
+    }
+    Ok(())
+}
+
+fn capitalised(word: &str) -> String {
+    let mut c = word.chars();
+    c.next().map(|f| f.to_uppercase().chain(c).collect()).unwrap_or_default()
+}
+
+fn by_condition_and_family<'a>(rows: &'a [Row<'a>]) -> BTreeMap<(Condition, &'static str), Vec<&'a Row<'a>>> {
+    let mut m: BTreeMap<(Condition, &'static str), Vec<&Row>> = BTreeMap::new();
+    for r in rows {
+        m.entry((r.case.condition, r.case.family())).or_default().push(r);
+    }
+    m
+}
+
+/// One curve per run, coloured by aspect ratio, labelled once per ratio.
+fn aspect_series(runs: &[&Row], points: impl Fn(&Row) -> Vec<(f64, f64)>, stroke: Stroke) -> Vec<Series> {
+    let mut aspects: Vec<u64> = runs.iter().map(|r| (r.case.aspect() * 1000.0).round() as u64).collect();
+    aspects.sort_unstable();
+    aspects.dedup();
+    let mut labelled = std::collections::BTreeSet::new();
+    runs.iter()
+        .map(|r| {
+            let a = (r.case.aspect() * 1000.0).round() as u64;
+            let color = PALETTE[aspects.iter().position(|&x| x == a).unwrap_or(0) % PALETTE.len()];
+            let label = if labelled.insert(a) { format!("a = {:.2}", r.case.aspect()) } else { String::new() };
+            Series::new(label, points(r), color, stroke)
+        })
+        .collect()
+}
+
+fn runout_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), String> {
+    md.push_str(
+        "## Runout against aspect ratio (the paper's Fig. 12)\n\nMean over the runs of each case (markers) and \
+         their range (bars) where a case was run with several deposition seeds.\n\n",
+    );
+    let groups = groups(rows);
+    let mut series = Vec::new();
+    let mut table = String::from(
+        "| method | condition | a | runs | runout (0.5 % front) | range | pile edge |\n|---|---|---|---|---|---|---|\n",
+    );
+    for (n, ((condition, family), _)) in by_condition_and_family(rows).into_iter().enumerate() {
+        let mut points = Vec::new();
+        let mut bars = Vec::new();
+        for ((c, f, _), runs) in &groups {
+            if *c != condition || *f != family {
+                continue;
+            }
+            let a = runs[0].case.aspect();
+            let Some((mean, lo, hi, count)) = spread(runs.iter().map(|r| r.summary.runout)) else { continue };
+            let pile = spread(runs.iter().map(|r| r.pile_edge())).map_or(f64::NAN, |p| p.0);
+            points.push((a, mean));
+            if count > 1 {
+                bars.push((a, lo, hi));
+            }
+            let _ = writeln!(
+                table,
+                "| {family} | {} | {a:.2} | {count} | {mean:.3} | {} | {} |",
+                condition_word(condition),
+                if count > 1 { format!("{lo:.3}–{hi:.3}") } else { "–".into() },
+                number(pile, 3)
+            );
+        }
+        let color = PALETTE[n % PALETTE.len()];
+        let stroke = if condition == Condition::Dry { Stroke::Dashed } else { Stroke::Solid };
+        series.push(Series::new(format!("{family} {}", condition_word(condition)), points.clone(), color, stroke));
+        series.push(Series { bars, ..Series::new("", points, color, Stroke::Markers) });
+    }
+    Chart {
+        title: "Runout against aspect ratio".into(),
+        x_label: "a = H0 / L0".into(),
+        y_label: "(L_f − L0) / L0".into(),
+        series,
+    }
+    .write(&dir.join("runout"))?;
+    figure(md, "runout", "runout against aspect ratio");
+    md.push_str(&table);
+    md.push('\n');
+    Ok(())
+}
+
+fn deposits_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), String> {
+    md.push_str(
+        "## Final deposits (the paper's Fig. 11)\n\nHeight of the deposit averaged over the flume's width \
+         against the distance from the gate, both normalised; DEM solid, MPM dashed.\n\n",
+    );
+    let mut by_condition: BTreeMap<Condition, Vec<&Row>> = BTreeMap::new();
+    for r in rows {
+        by_condition.entry(r.case.condition).or_default().push(r);
+    }
+    for (condition, runs) in by_condition {
+        let mut series = Vec::new();
+        for family in ["DEM", "MPM"] {
+            let of: Vec<&Row> = runs.iter().copied().filter(|r| r.case.family() == family).collect();
+            let stroke = if family == "MPM" { Stroke::Dashed } else { Stroke::Solid };
+            let mut s = aspect_series(
+                &of,
+                |r| {
+                    let (l0, h0) = (r.case.column_length, r.case.column_height);
+                    r.summary.deposit.iter().map(|p| ((p[0] - l0) / l0, p[1] / h0)).collect()
+                },
+                stroke,
+            );
+            for x in &mut s {
+                if !x.label.is_empty() {
+                    x.label = format!("{family} {}", x.label);
+                }
+            }
+            series.extend(s);
+        }
+        let stem = format!("deposit_{}", condition_word(condition));
+        Chart {
+            title: format!("Final deposits, {}", condition_word(condition)),
+            x_label: "(x − L0) / L0".into(),
+            y_label: "h / H0".into(),
+            series,
+        }
+        .write(&dir.join(&stem))?;
+        figure(md, &stem, &format!("final deposits, {}", condition_word(condition)));
+    }
+    Ok(())
+}
+
+/// Both methods case by case (the runs' means); `*` where their pile
+/// edges differ by more than 20 %.
+fn methods_table(md: &mut String, rows: &[Row]) {
+    md.push_str(
+        "## The two methods side by side\n\n| condition | a | DEM runout | MPM runout | DEM pile edge | MPM pile edge | \
+         MPM / DEM pile edge | DEM front 1 / 2 / 4 t_ref | MPM front 1 / 2 / 4 t_ref | DEM liquid front | MPM liquid front |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let groups = groups(rows);
+    let heights: std::collections::BTreeSet<(Condition, u64)> = groups.keys().map(|(c, _, h)| (*c, *h)).collect();
+    for (condition, h) in heights {
+        let (Some(dem), Some(mpm)) = (groups.get(&(condition, "DEM", h)), groups.get(&(condition, "MPM", h))) else {
+            continue;
+        };
+        let mean = |runs: &[&Row], f: &dyn Fn(&Row) -> f64| spread(runs.iter().map(|r| f(r))).map_or(f64::NAN, |s| s.0);
+        let fronts = |runs: &[&Row]| {
+            FRONT_TIMES.iter().map(|&t| number(mean(runs, &|r| r.front_at(t)), 2)).collect::<Vec<_>>().join(" / ")
+        };
+        let (pd, pm) = (mean(dem, &|r| r.pile_edge()), mean(mpm, &|r| r.pile_edge()));
+        let ratio = pm / pd;
+        let _ = writeln!(
+            md,
+            "| {} | {:.2} | {} | {} | {} | {} | {}{} | {} | {} | {} | {} |",
+            condition_word(condition),
+            dem[0].case.aspect(),
+            number(mean(dem, &|r| r.summary.runout), 3),
+            number(mean(mpm, &|r| r.summary.runout), 3),
+            number(pd, 3),
+            number(pm, 3),
+            number(ratio, 2),
+            if (ratio - 1.0).abs() > 0.2 { " *" } else { "" },
+            fronts(dem),
+            fronts(mpm),
+            number(mean(dem, &|r| r.liquid_front_end()), 3),
+            number(mean(mpm, &|r| r.liquid_front_end()), 3),
+        );
+    }
+    md.push('\n');
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(t_norm: f64, x_norm: f64) -> FrontSample {
+        FrontSample { t: t_norm * 0.1, t_norm, x: 0.04 * (1.0 + x_norm), x_norm }
+    }
+
+    /// A front read between samples is the straight line between them;
+    /// at a sample, the sample; outside the run, NaN.
+    #[test]
+    fn fronts_interpolate_between_samples() {
+        let front = [sample(0.0, 0.0), sample(1.0, 1.0), sample(3.0, 2.0)];
+        assert_eq!(interpolate(&front, 1.0), 1.0);
+        assert!((interpolate(&front, 2.0) - 1.5).abs() < 1e-12);
+        assert!((interpolate(&front, 0.25) - 0.25).abs() < 1e-12);
+        assert!(interpolate(&front, 3.5).is_nan());
+        assert!(interpolate(&front, -0.1).is_nan());
+        assert!(interpolate(&[], 1.0).is_nan());
+    }
+
+    #[test]
+    fn spread_skips_nan() {
+        let (mean, lo, hi, n) = spread([1.0, f64::NAN, 3.0].into_iter()).unwrap();
+        assert_eq!((mean, lo, hi, n), (2.0, 1.0, 3.0, 2));
+        assert!(spread([f64::NAN].into_iter()).is_none());
+    }
+}

@@ -1,0 +1,348 @@
+//! `coupler campaign`: the paper's Table 1 matrix in its quick form (20
+//! runs, both methods, dry and saturated), the report read back against
+//! the runs' own summaries, resuming a campaign, interrupting one, and
+//! the refusals.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use integration_tests::{binary, process_running, repo_root, scratch_dir, summary};
+use schemas::summary::RunSummary;
+
+fn campaign(args: &[&str], out: &Path, cache: &Path) -> Output {
+    Command::new(binary("coupler"))
+        .current_dir(repo_root())
+        .env("SGF_CACHE_DIR", cache)
+        .arg("campaign")
+        .args(args)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("coupler starts")
+}
+
+/// The quick campaign, once for all tests of this file (~3 min on 2 cores).
+fn quick() -> &'static (PathBuf, Output) {
+    static RUN: OnceLock<(PathBuf, Output)> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let dir = scratch_dir("campaign_quick");
+        let out = dir.join("out");
+        let o = campaign(&["scenes/ceccato2020", "--quick"], &out, &dir.join("cache"));
+        assert!(o.status.success(), "quick campaign failed:\n{}", String::from_utf8_lossy(&o.stderr));
+        (out, o)
+    })
+}
+
+const CASES: [&str; 20] = [
+    "dry_h030",
+    "dry_h040",
+    "dry_h050",
+    "dry_h060",
+    "dry_h070",
+    "sat_h030",
+    "sat_h040",
+    "sat_h050",
+    "sat_h060",
+    "sat_h070",
+    "mpm_dry_h030",
+    "mpm_dry_h040",
+    "mpm_dry_h050",
+    "mpm_dry_h060",
+    "mpm_dry_h070",
+    "mpm_sat_h030",
+    "mpm_sat_h040",
+    "mpm_sat_h050",
+    "mpm_sat_h060",
+    "mpm_sat_h070",
+];
+
+/// The report's table rows that start with `| first |`, split into cells.
+fn rows<'a>(report: &'a str, section: &str) -> Vec<Vec<&'a str>> {
+    let start = report.find(section).unwrap_or_else(|| panic!("report lacks {section:?}"));
+    let body = &report[start..];
+    let end = body[section.len()..].find("\n## ").map_or(body.len(), |e| e + section.len());
+    body[..end]
+        .lines()
+        .filter(|l| {
+            l.starts_with("| ")
+                && !l.starts_with("| case")
+                && !l.starts_with("| method")
+                && !l.starts_with("| condition")
+        })
+        .map(|l| l.trim_matches('|').split('|').map(str::trim).collect())
+        .collect()
+}
+
+fn front_at(s: &RunSummary, t: f64) -> f64 {
+    let f = &s.front;
+    let i = f.partition_point(|p| p.t_norm < t);
+    if i == 0 || i >= f.len() {
+        return f64::NAN;
+    }
+    let (a, b) = (&f[i - 1], &f[i]);
+    a.x_norm + (b.x_norm - a.x_norm) * (t - a.t_norm) / (b.t_norm - a.t_norm)
+}
+
+/// Every case ran to its end and the runs table holds, row by row, the
+/// numbers of its `summary.json`: status, runout, the fronts read at
+/// t/t_ref = 1, 2, 4 (linear between samples), the liquid front.
+#[test]
+fn quick_campaign_reports_every_run_with_its_summary() {
+    let (out, _) = quick();
+    let report = std::fs::read_to_string(out.join("report.md")).expect("report.md written");
+    assert!(report.contains("20 of 20 cases finished"), "{report}");
+    let table = rows(&report, "## Runs");
+    assert_eq!(table.len(), CASES.len(), "one row per case");
+    for (row, name) in table.iter().zip(CASES) {
+        assert_eq!(row[0], name, "rows in the campaign file's order");
+        let s = summary(&out.join("cases").join(name));
+        assert!(matches!(row[4], "completed" | "at_rest"), "{name}: {row:?}");
+        assert_eq!(row[4], s.status.as_str());
+        assert_eq!(row[8], format!("{:.3}", s.runout), "{name}: runout");
+        let fronts: Vec<String> = [1.0, 2.0, 4.0]
+            .iter()
+            .map(|&t| {
+                let x = front_at(&s, t);
+                if x.is_finite() {
+                    format!("{x:.2}")
+                } else {
+                    "–".into()
+                }
+            })
+            .collect();
+        assert_eq!(row[10], fronts.join(" / "), "{name}: fronts");
+        if name.contains("sat") {
+            let liquid = s.liquid_front.last().expect("a saturated run measures its liquid front").x_norm;
+            assert_eq!(row[11], format!("{liquid:.3}"), "{name}: liquid front");
+        } else {
+            assert_eq!(row[11], "–", "{name}: a dry run has no liquid front");
+        }
+        // The method and the aspect ratio come from the scene.
+        let method = if name.starts_with("mpm") {
+            "mpm"
+        } else if name.starts_with("sat") {
+            "dem_lbm"
+        } else {
+            "dem"
+        };
+        assert_eq!(row[1], method);
+        let h: f64 = name[name.len() - 3..].parse::<f64>().unwrap() / 1000.0;
+        assert_eq!(row[3], format!("{:.2}", h / 0.04));
+    }
+}
+
+/// The runout table is the mean of each case's runs, one row per method,
+/// condition and aspect ratio; the methods table pairs DEM and MPM for
+/// each of the ten cases. Across a, the runout grows from the lowest to
+/// the tallest column for each method and condition (the paper's Fig. 12;
+/// a = 0.75 against 1.75 more than doubles the released height, a trend a
+/// coarse run keeps).
+#[test]
+fn quick_campaign_runout_and_methods_tables_follow_the_runs() {
+    let (out, _) = quick();
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let runout = rows(&report, "## Runout against aspect ratio");
+    assert_eq!(runout.len(), 20, "{runout:?}");
+    for r in &runout {
+        let prefix = match (r[0], r[1]) {
+            ("DEM", "dry") => "dry",
+            ("DEM", "saturated") => "sat",
+            ("MPM", "dry") => "mpm_dry",
+            ("MPM", "saturated") => "mpm_sat",
+            other => panic!("unexpected group {other:?}"),
+        };
+        let a: f64 = r[2].parse().unwrap();
+        let name = format!("{prefix}_h{:03}", (a * 40.0).round() as u32);
+        let s = summary(&out.join("cases").join(&name));
+        assert_eq!(r[3], "1", "{name}: one run per case");
+        assert_eq!(r[4], format!("{:.3}", s.runout), "{name}");
+    }
+    for group in runout.chunks(5) {
+        let first: f64 = group[0][4].parse().unwrap();
+        let last: f64 = group[4][4].parse().unwrap();
+        assert!(last > first, "runout does not grow with a for {} {}: {first} -> {last}", group[0][0], group[0][1]);
+    }
+    let methods = rows(&report, "## The two methods side by side");
+    assert_eq!(methods.len(), 10, "{methods:?}");
+    for m in &methods {
+        let ratio: f64 = m[6].trim_end_matches(" *").parse().unwrap();
+        let (dem, mpm): (f64, f64) = (m[4].parse().unwrap(), m[5].parse().unwrap());
+        assert!((ratio - mpm / dem).abs() < 0.006, "{m:?}");
+        assert_eq!(m[6].ends_with('*'), (mpm / dem - 1.0).abs() > 0.2, "{m:?}");
+    }
+}
+
+/// Every figure the report names exists as SVG and PNG; each front
+/// figure of a saturated case draws four curves (both methods' solid and
+/// liquid fronts), each dry one two, and the runout figure one line per
+/// method and condition.
+#[test]
+fn quick_campaign_draws_every_figure() {
+    let (out, _) = quick();
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let figures: Vec<&str> = report.match_indices("](figures/").map(|(i, _)| &report[i + 10..]).collect();
+    let mut svgs = 0;
+    for f in figures {
+        let name = &f[..f.find(')').unwrap()];
+        let path = out.join("figures").join(name);
+        let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        if name.ends_with(".svg") {
+            svgs += 1;
+            let svg = String::from_utf8(bytes).unwrap();
+            assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"), "{name}");
+            let lines = svg.matches("<polyline").count();
+            if name.starts_with("front_saturated") {
+                // Four curves, four legend keys.
+                assert!(lines >= 8, "{name}: {lines} lines");
+            } else if name.starts_with("front_dry") {
+                assert!(lines >= 4, "{name}: {lines} lines");
+            }
+        } else {
+            assert!(name.ends_with(".png"), "{name}");
+            assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{name}");
+        }
+    }
+    // 10 cases, 4 overviews, runout, 2 deposits.
+    assert_eq!(svgs, 17);
+    let runout = std::fs::read_to_string(out.join("figures/runout.svg")).unwrap();
+    for label in ["DEM dry", "DEM saturated", "MPM dry", "MPM saturated"] {
+        assert!(runout.contains(label), "runout figure lacks {label}");
+    }
+}
+
+/// The same command again runs nothing that finished; a case whose
+/// summary is gone is run again, alone, and gives the same result.
+#[test]
+fn a_campaign_continues_where_it_stopped() {
+    let (out, _) = quick();
+    let again = scratch_dir("campaign_again");
+    let copy = again.join("out");
+    let status = Command::new("cp").arg("-r").arg(out).arg(&copy).status().unwrap();
+    assert!(status.success());
+    let before = summary(&copy.join("cases/mpm_dry_h030"));
+    std::fs::remove_file(copy.join("cases/mpm_dry_h030/summary.json")).unwrap();
+    let o = campaign(&["scenes/ceccato2020", "--quick"], &copy, &again.join("cache"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("19 already finished, 1 to run"), "{err}");
+    assert!(err.contains("mpm_dry_h030 started"), "{err}");
+    let after = summary(&copy.join("cases/mpm_dry_h030"));
+    assert_eq!(after.runout, before.runout, "same scene, same result");
+    assert_eq!(after.front.len(), before.front.len());
+    // A full campaign is not continued in a quick one's folder.
+    let o = campaign(&["scenes/ceccato2020"], &copy, &again.join("cache"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("holds the campaign ceccato2020 --quick, not ceccato2020") && err.contains("--out"), "{err}");
+}
+
+/// A campaign file of its own: two small dry columns with checkpoints.
+fn small_campaign(dir: &Path) -> PathBuf {
+    let root = repo_root();
+    let file = dir.join("campaign.toml");
+    let scene = root.join("scenes/validation/dry_small.toml");
+    let text = format!(
+        "[campaign]\nname = \"small\"\n\n[[case]]\nname = \"a\"\nscene = {scene:?}\nset = [\"output.end_time=1.5\", \"output.checkpoint_interval=0.05\"]\n\n\
+         [[case]]\nname = \"b\"\nscene = {scene:?}\nset = [\"output.end_time=1.5\", \"output.checkpoint_interval=0.05\", \"particles[0].packing.seed=2\"]\n"
+    );
+    std::fs::write(&file, text).unwrap();
+    file
+}
+
+/// Ctrl-C: the campaign stops its running cases (each keeps its recording
+/// and checkpoints), writes the report, exits 130, leaves no process;
+/// the same command then finishes the cases, continuing from checkpoints.
+#[test]
+fn an_interrupted_campaign_stops_cleanly_and_continues() {
+    let dir = scratch_dir("campaign_interrupted");
+    let file = small_campaign(&dir);
+    let out = dir.join("out");
+    let mut child = Command::new(binary("coupler"))
+        .current_dir(repo_root())
+        .env("SGF_CACHE_DIR", dir.join("cache"))
+        .arg("campaign")
+        .arg(&file)
+        .arg("--out")
+        .arg(&out)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait until both cases have written a checkpoint.
+    let start = Instant::now();
+    let has_checkpoint = |case: &str| {
+        std::fs::read_dir(out.join("cases").join(case).join("checkpoints"))
+            .map(|d| d.flatten().any(|e| e.path().extension().is_some_and(|x| x == "ckpt")))
+            .unwrap_or(false)
+    };
+    while !(has_checkpoint("a") && has_checkpoint("b")) {
+        assert!(start.elapsed() < Duration::from_secs(120), "no checkpoints after 120 s");
+        assert!(child.try_wait().unwrap().is_none(), "campaign ended before its checkpoints");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert!(err.contains("campaign interrupted") && err.contains("run the same command again"), "{err}");
+    assert!(!process_running("coupler", &out.join("cases")), "a case's coupler outlived the campaign");
+    for proc in ["dem_proc", "coupler"] {
+        assert!(!process_running(proc, &out), "{proc} left running");
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("0 of 2 cases finished") && report.contains("interrupted"), "{report}");
+    for case in ["a", "b"] {
+        let s = summary(&out.join("cases").join(case));
+        assert_eq!(s.status.as_str(), "interrupted", "{case}");
+    }
+    let o = campaign(&[file.to_str().unwrap()], &out, &dir.join("cache"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("a resumed from its checkpoint") && err.contains("b resumed from its checkpoint"), "{err}");
+    for case in ["a", "b"] {
+        let s = summary(&out.join("cases").join(case));
+        assert!(matches!(s.status.as_str(), "completed" | "at_rest"), "{case}: {}", s.status);
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("2 of 2 cases finished"), "{report}");
+}
+
+/// A campaign file with a mistake stops before any run, naming it.
+#[test]
+fn bad_campaign_files_are_refused_with_the_reason() {
+    let dir = scratch_dir("campaign_bad");
+    let out = dir.join("out");
+    let cache = dir.join("cache");
+    let write = |text: &str| {
+        let f = dir.join("campaign.toml");
+        std::fs::write(&f, text).unwrap();
+        f
+    };
+    let check = |file: &Path, expect: &[&str]| {
+        let o = campaign(&[file.to_str().unwrap()], &out, &cache);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        for e in expect {
+            assert!(err.contains(e), "expected {e:?} in: {err}");
+        }
+        assert!(!out.join("cases").exists(), "nothing run");
+    };
+    let scene = repo_root().join("scenes/validation/dry_small.toml");
+    check(&write("[campaign]\nname = \"x\"\nsceens = []\n"), &["sceens"]);
+    check(&write("[campaign]\nname = \"x\"\n"), &["no cases"]);
+    check(
+        &write(&format!(
+            "[campaign]\nname = \"x\"\n[[case]]\nname = \"a\"\nscene = {scene:?}\nset = [\"dem.friction=-1\"]\n"
+        )),
+        &["case", "dem.friction"],
+    );
+    check(
+        &write(&format!(
+            "[campaign]\nname = \"x\"\n[[case]]\nname = \"a\"\nscene = {scene:?}\n[[case]]\nname = \"a\"\nscene = {scene:?}\n"
+        )),
+        &["two cases are named \"a\""],
+    );
+    check(&dir.join("missing.toml"), &["cannot read campaign file"]);
+}
