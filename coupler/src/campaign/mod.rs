@@ -559,7 +559,8 @@ impl<'a> Progress<'a> {
 }
 
 /// The share of its simulated time a running case has reached, from the
-/// last `t = A / B s` of its log (the solvers' quiet progress lines).
+/// last `PHASE: t = A / B s` of its log (the quiet progress lines of
+/// `coupler run`).
 fn run_fraction(log: &Path) -> Option<f64> {
     let mut file = std::fs::File::open(log).ok()?;
     let len = file.metadata().ok()?.len();
@@ -568,11 +569,15 @@ fn run_fraction(log: &Path) -> Option<f64> {
     file.read_to_end(&mut bytes).ok()?;
     // The cut may fall inside a character.
     let tail = String::from_utf8_lossy(&bytes);
-    tail.rmatch_indices("t = ").find_map(|(at, _)| {
-        let (now, rest) = tail[at + 4..].split_once(" / ")?;
+    tail.lines().rev().find_map(|line| {
+        let (phase, progress) = line.split_once(": t = ")?;
+        let (now, rest) = progress.split_once(" / ")?;
         let end = rest.split_whitespace().next()?;
         let (now, end): (f64, f64) = (now.trim().parse().ok()?, end.parse().ok()?);
-        (end > 0.0).then(|| (now / end).clamp(0.0, 1.0))
+        // Before t = 0 (deposition, the MPM's gravity phase) the run has
+        // not started its simulated time.
+        let preparing = matches!(phase, "deposition" | "gravity_phase");
+        (end > 0.0).then(|| if preparing { 0.0 } else { (now / end).clamp(0.0, 1.0) })
     })
 }
 
@@ -583,5 +588,51 @@ fn human_seconds(s: f64) -> String {
         format!("{:.0} min", s / 60.0)
     } else {
         format!("{:.1} h", s / 3600.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The ETA reads how far a running case has got from its last
+    /// progress line; before t = 0 (deposition, gravity phase) it has
+    /// done none of its run.
+    #[test]
+    fn a_running_case_is_as_far_as_its_last_progress_line() {
+        let log = std::env::temp_dir().join(format!("sgf-campaign-log-{}", std::process::id()));
+        let fraction = |text: &str| {
+            std::fs::write(&log, text).unwrap();
+            run_fraction(&log)
+        };
+        assert_eq!(
+            fraction("deposition: t = 0.2464 / 3.000 s, 3.7 ms simulated per wall second, 40.8 s wall\n"),
+            Some(0.0)
+        );
+        let f = fraction(
+            "deposition: t = 3.000 / 3.000 s, 1 ms simulated per wall second, 80 s wall\n\
+             collapse: t = 0.2125 / 0.850 s, 42.9 ms simulated per wall second, 15.4 s wall\n\
+             dem_proc: a line with t = 1 s and a / in it\n",
+        )
+        .unwrap();
+        assert!((f - 0.25).abs() < 1e-12, "{f}");
+        assert_eq!(fraction("gravity_phase: t = 0.1 / 0.200 s, 1 ms simulated per wall second, 1 s wall\n"), Some(0.0));
+        assert_eq!(fraction("coupler: nothing yet\n"), None);
+        std::fs::remove_file(&log).ok();
+    }
+
+    /// `--quick`'s lists apply by the solvers a case runs.
+    #[test]
+    fn quick_overrides_follow_the_solvers_of_the_method() {
+        let q = QuickOverrides {
+            all: vec!["a".into()],
+            dem: vec!["d".into()],
+            lbm: vec!["l".into()],
+            mpm: vec!["m".into()],
+        };
+        assert_eq!(q.for_method(Method::DemDry), ["a", "d"]);
+        assert_eq!(q.for_method(Method::DemLbm), ["a", "d", "l"]);
+        assert_eq!(q.for_method(Method::LbmFluid), ["a", "l"]);
+        assert_eq!(q.for_method(Method::Mpm), ["a", "m"]);
     }
 }
