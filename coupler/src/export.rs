@@ -29,10 +29,19 @@ pub struct Exported {
 }
 
 /// One frame of points: positions and named point arrays (each `components` wide).
-struct Frame {
-    time: f64,
-    points: Vec<[f32; 3]>,
-    arrays: Vec<(String, usize, Vec<f32>)>,
+pub(crate) struct Frame {
+    /// Simulated time, s.
+    pub time: f64,
+    pub points: Vec<[f32; 3]>,
+    /// Name, components per point, values.
+    pub arrays: Vec<(String, usize, Vec<f32>)>,
+}
+
+impl Frame {
+    /// A one-component point array by name.
+    pub fn array(&self, name: &str) -> Option<&[f32]> {
+        self.arrays.iter().find(|(n, c, _)| n == name && *c == 1).map(|(_, _, v)| v.as_slice())
+    }
 }
 
 /// Writes every `every`-th frame of each series of the recording `mcap` into `out`.
@@ -90,7 +99,7 @@ pub fn export_vtk(mcap: &Path, out: &Path, every: usize) -> Result<Exported, Str
 }
 
 /// The points of a cloud: x, y, z and every other Float32 field.
-fn cloud_frame(cloud: &PointCloud, time: f64) -> Result<Frame, String> {
+pub(crate) fn cloud_frame(cloud: &PointCloud, time: f64) -> Result<Frame, String> {
     use foxglove::schemas::packed_element_field::NumericType;
     let stride = cloud.point_stride as usize;
     let n = cloud.data.len().checked_div(stride).unwrap_or(0);

@@ -204,8 +204,12 @@ fn quick_campaign_draws_every_figure() {
             assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{name}");
         }
     }
-    // 10 cases, 4 overviews, runout, 2 deposits.
-    assert_eq!(svgs, 17);
+    // 10 cases, 4 overviews, runout, 2 deposits, 10 DEM coordination
+    // charts, the MPM's fluidised share; a snapshot (PNG) per run.
+    assert_eq!(svgs, 28);
+    for name in CASES {
+        assert!(report.contains(&format!("](figures/snapshots_{name}.png)")), "no snapshots of {name}");
+    }
     let runout = std::fs::read_to_string(out.join("figures/runout.svg")).unwrap();
     for label in ["DEM dry", "DEM saturated", "MPM dry", "MPM saturated"] {
         assert!(runout.contains(label), "runout figure lacks {label}");
@@ -345,4 +349,39 @@ fn bad_campaign_files_are_refused_with_the_reason() {
         &["two cases are named \"a\""],
     );
     check(&dir.join("missing.toml"), &["cannot read campaign file"]);
+}
+
+/// The figures read from the recordings agree with the solvers' own
+/// measures: the coordination curves' means at the start and the end are
+/// the DEM summary's, and the largest fluidised share over the recorded
+/// frames is the MPM summary's `fluidised_fraction_max` (its soil points
+/// carry equal masses, so the point share is the mass share).
+#[test]
+fn quick_campaign_recorded_figures_agree_with_the_summaries() {
+    let (out, _) = quick();
+    for name in CASES.iter().filter(|n| !n.starts_with("mpm")) {
+        let s = summary(&out.join("cases").join(name));
+        let dem = s.dem.as_ref().unwrap();
+        let svg = std::fs::read_to_string(out.join(format!("figures/coordination_{name}.svg"))).unwrap();
+        let means: Vec<f64> = svg
+            .match_indices("(mean ")
+            .map(|(i, _)| svg[i + 6..].split(')').next().unwrap().parse().unwrap())
+            .collect();
+        assert!(means.len() >= 3, "{name}: {means:?}");
+        assert!(
+            (means[0] - dem.coordination_initial).abs() <= 0.005,
+            "{name}: {means:?} against {}",
+            dem.coordination_initial
+        );
+        let last = *means.last().unwrap();
+        assert!((last - dem.coordination_final).abs() <= 0.005, "{name}: {means:?} against {}", dem.coordination_final);
+    }
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let table = rows(&report, "## The MPM's fluidised share");
+    assert_eq!(table.len(), 10, "{table:?}");
+    for r in &table {
+        let s = summary(&out.join("cases").join(r[0]));
+        let largest: f64 = r[1].parse().unwrap();
+        assert!((largest - s.mpm.as_ref().unwrap().fluidised_fraction_max).abs() <= 5e-5, "{r:?}");
+    }
 }

@@ -14,13 +14,14 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 /// The font every text of a figure is set in.
-const FONT: &str = "sans-serif";
+pub const FONT: &str = "sans-serif";
 static FONT_BYTES: &[u8] = include_bytes!("../../assets/DejaVuSans-subset.ttf");
 
 /// Figure size in pixels (SVG user units alike).
 const SIZE: (u32, u32) = (900, 560);
 
-fn register_font() {
+/// Makes the embedded font the one every figure's text is set in.
+pub fn register_font() {
     static REGISTER: Once = Once::new();
     REGISTER.call_once(|| {
         // The bytes are a valid TrueType font checked in with the source:

@@ -11,6 +11,7 @@
 
 mod figures;
 mod report;
+mod snapshots;
 
 use std::collections::BTreeSet;
 use std::io::{Read, Seek, SeekFrom};

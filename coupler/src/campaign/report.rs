@@ -12,6 +12,7 @@ use schemas::scene::Condition;
 use schemas::summary::RunSummary;
 
 use super::figures::{Chart, Series, Stroke, PALETTE};
+use super::snapshots::{self, Recording};
 use super::{Campaign, Case, Schedule};
 
 /// How the campaign was run, for the report's header.
@@ -169,11 +170,10 @@ pub fn write(campaign: &Campaign, summaries: &[Option<RunSummary>], ctx: &Contex
     runout_section(&mut md, &rows, &figures)?;
     deposits_section(&mut md, &rows, &figures)?;
     methods_table(&mut md, &rows);
+    recorded_sections(&mut md, &rows, &figures)?;
     md.push_str(
-        "\n## Not in this report yet\n\nSnapshots of the column (Figs. 2, 4, 5, 9), coordination-number \
-         distributions (Figs. 6–7), the MPM's fluidised share over time (Fig. 8), the drag study (Fig. 13) \
-         and speed against error: see issue 22. `coupler export RUN --vtk` writes any run's grains, \
-         water surface and MPM points for ParaView.\n",
+        "\n## Not in this report yet\n\nThe drag study (Fig. 13) and speed against error: see issue 22. \
+         `coupler export RUN --vtk` writes any run's grains, water surface and MPM points for ParaView.\n",
     );
     let path = campaign.out.join("report.md");
     std::fs::write(&path, md).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
@@ -457,6 +457,75 @@ fn deposits_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), Str
         }
         .write(&dir.join(&stem))?;
         figure(md, &stem, &format!("final deposits, {}", condition_word(condition)));
+    }
+    Ok(())
+}
+
+/// The figures drawn from each run's recording: snapshots of every case,
+/// coordination numbers of the DEM's, the fluidised share of the MPM's.
+fn recorded_sections(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), String> {
+    let mut snaps = String::from(
+        "## Snapshots (the paper's Figs. 2, 4, 5 and 9)\n\nSide views (x–z) at t/t_ref = 0, 1, 2, 4 and at the \
+         end of each run; all the flume's width projected. Raster images (PNG).\n\n",
+    );
+    let mut coordination = String::from(
+        "## Coordination numbers (the paper's Figs. 6–7)\n\nThe fraction of grains with each number of \
+         contacts at t/t_ref = 0, 1, 2, 4 and at the end (`coordination` of `/dem/particles`).\n\n",
+    );
+    let mut fluidised: Vec<Series> = Vec::new();
+    let mut fluidised_table =
+        String::from("| case | largest share | summary's `fluidised_fraction_max` |\n|---|---|---|\n");
+    let mpm_rows: Vec<&Row> = rows.iter().filter(|r| r.case.family() == "MPM").collect();
+    for r in rows {
+        let path = r.case.dir.join("run.mcap");
+        if !path.exists() {
+            let _ = writeln!(snaps, "{}: no recording ({} is missing)\n", r.case.name, path.display());
+            continue;
+        }
+        let rec = Recording::read(&path)?;
+        let stem = format!("snapshots_{}", r.case.name);
+        if snapshots::snapshots(r.case, r.summary, &rec, &dir.join(format!("{stem}.png")))? {
+            let _ = writeln!(snaps, "![snapshots of {}](figures/{stem}.png)\n", r.case.name);
+        }
+        if r.case.family() == "DEM" {
+            if let Some(chart) = snapshots::coordination(r.case, r.summary, &rec)? {
+                let stem = format!("coordination_{}", r.case.name);
+                chart.write(&dir.join(&stem))?;
+                figure(&mut coordination, &stem, &format!("coordination numbers of {}", r.case.name));
+            }
+        } else if r.case.family() == "MPM" {
+            let share = snapshots::fluidised_share(r.summary, &rec)?;
+            let largest = share.iter().map(|p| p.1).fold(f64::NAN, f64::max);
+            let _ = writeln!(
+                fluidised_table,
+                "| {} | {} | {} |",
+                r.case.name,
+                number(largest, 4),
+                r.summary.mpm.as_ref().map_or("–".into(), |m| number(m.fluidised_fraction_max, 4))
+            );
+            let k = mpm_rows.iter().position(|m| m.case.name == r.case.name).unwrap_or(0);
+            let stroke = if r.case.condition == Condition::Dry { Stroke::Dashed } else { Stroke::Solid };
+            let label = format!("{} a = {:.2}", condition_word(r.case.condition), r.case.aspect());
+            fluidised.push(Series::new(label, share, PALETTE[k % 5], stroke));
+        }
+    }
+    md.push_str(&snaps);
+    md.push_str(&coordination);
+    if !fluidised.is_empty() {
+        md.push_str(
+            "## The MPM's fluidised share (the paper's Fig. 8)\n\nThe share of the soil's points whose porosity \
+             exceeds n_max (they carry no effective stress), on every recorded frame.\n\n",
+        );
+        Chart {
+            title: "MPM: fluidised share of the soil".into(),
+            x_label: "t / t_ref".into(),
+            y_label: "fluidised share of the solid points".into(),
+            series: fluidised,
+        }
+        .write(&dir.join("fluidised"))?;
+        figure(md, "fluidised", "fluidised share of the MPM soil");
+        md.push_str(&fluidised_table);
+        md.push('\n');
     }
     Ok(())
 }
