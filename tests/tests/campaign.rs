@@ -63,15 +63,11 @@ fn rows<'a>(report: &'a str, section: &str) -> Vec<Vec<&'a str>> {
     let start = report.find(section).unwrap_or_else(|| panic!("report lacks {section:?}"));
     let body = &report[start..];
     let end = body[section.len()..].find("\n## ").map_or(body.len(), |e| e + section.len());
-    body[..end]
-        .lines()
-        .filter(|l| {
-            l.starts_with("| ")
-                && !l.starts_with("| case")
-                && !l.starts_with("| method")
-                && !l.starts_with("| condition")
-        })
-        .map(|l| l.trim_matches('|').split('|').map(str::trim).collect())
+    let lines: Vec<&str> = body[..end].lines().collect();
+    // A header is the row above a |---| separator.
+    (0..lines.len())
+        .filter(|&i| lines[i].starts_with("| ") && !lines.get(i + 1).is_some_and(|n| n.starts_with("|---")))
+        .map(|i| lines[i].trim_matches('|').split('|').map(str::trim).collect())
         .collect()
 }
 
@@ -384,4 +380,44 @@ fn quick_campaign_recorded_figures_agree_with_the_summaries() {
         let largest: f64 = r[1].parse().unwrap();
         assert!((largest - s.mpm.as_ref().unwrap().fluidised_fraction_max).abs() <= 5e-5, "{r:?}");
     }
+}
+
+/// A speed-against-error study: three element sizes of one MPM column.
+/// The report's table holds each run's errors against the finest as the
+/// summaries give them, and the observed order from those errors; the
+/// figure has log axes.
+#[test]
+fn a_study_is_reported_as_speed_against_error() {
+    let dir = scratch_dir("campaign_study");
+    let scene = repo_root().join("scenes/ceccato2020/mpm_dry_h030.toml");
+    let mut text = String::from("[campaign]\nname = \"study\"\n");
+    for (tag, h, level) in [("e5", "0.005", 8), ("e3p3", "0.0033333333333333335", 12), ("e2p5", "0.0025", 16)] {
+        text += &format!(
+            "\n[[case]]\nname = \"{tag}\"\nscene = {scene:?}\nseries = \"MPM {tag}\"\nstudy = \"element size\"\nlevel = {level}\n\
+             set = [\"mpm.element_size={h}\", \"mpm.points_per_element=4\", \"output.end_time=0.2\", \"output.stop_at_rest=false\"]\n"
+        );
+    }
+    let file = dir.join("campaign.toml");
+    std::fs::write(&file, text).unwrap();
+    let out = dir.join("out");
+    let o = campaign(&[file.to_str().unwrap()], &out, &dir.join("cache"));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let table = rows(&report, "## Speed against error");
+    assert_eq!(table.len(), 3, "{table:?}");
+    let s: Vec<RunSummary> = ["e5", "e3p3", "e2p5"].iter().map(|n| summary(&out.join("cases").join(n))).collect();
+    let reference = s[2].runout;
+    assert_eq!(table[2][2], "e2p5");
+    assert_eq!(table[2][5], "(reference)");
+    let errors: Vec<f64> = (0..2).map(|i| (s[i].runout - reference).abs() / reference).collect();
+    for i in 0..2 {
+        assert_eq!(table[i][1], ["8", "12"][i]);
+        assert_eq!(table[i][5], format!("{:.2e}", errors[i]), "{:?}", table[i]);
+    }
+    // The order between the two coarse levels, from their errors:
+    // ln(e_8 / e_12) / ln(12 / 8).
+    let order = (errors[0] / errors[1]).ln() / 1.5f64.ln();
+    assert_eq!(table[1][7], format!("{order:.2}"), "{:?}", table[1]);
+    let svg = std::fs::read_to_string(out.join("figures/speed_error.svg")).unwrap();
+    assert!(svg.contains("element size: runout") && svg.contains("element size: front L2"));
 }

@@ -10,6 +10,7 @@ use std::ops::Range;
 use std::path::Path;
 use std::sync::Once;
 
+use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -66,6 +67,8 @@ pub struct Chart {
     pub x_label: String,
     pub y_label: String,
     pub series: Vec<Series>,
+    /// Both axes logarithmic (points not above zero are left out).
+    pub log_axes: bool,
 }
 
 /// The colours of the report: one per aspect ratio or method, readable
@@ -86,7 +89,7 @@ impl Chart {
         let mut x = (f64::INFINITY, f64::NEG_INFINITY);
         let mut y = (f64::INFINITY, f64::NEG_INFINITY);
         let mut take = |px: f64, py: f64| {
-            if px.is_finite() && py.is_finite() {
+            if self.drawable(px, py) {
                 x = (x.0.min(px), x.1.max(px));
                 y = (y.0.min(py), y.1.max(py));
             }
@@ -98,9 +101,14 @@ impl Chart {
                 take(px, hi)
             });
         }
+        let log = self.log_axes;
         let pad = |(lo, hi): (f64, f64)| {
             if !lo.is_finite() {
-                return 0.0..1.0;
+                return if log { 0.1..1.0 } else { 0.0..1.0 };
+            }
+            if log {
+                // Whole decades, so that the axes carry labels.
+                return 10f64.powf(lo.log10().floor())..10f64.powf((hi * 1.0001).log10().ceil());
             }
             let span = if hi > lo { hi - lo } else { lo.abs().max(1.0) };
             (lo - 0.05 * span)..(hi + 0.05 * span)
@@ -126,13 +134,30 @@ impl Chart {
         let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
         root.fill(&WHITE).map_err(err)?;
         let (xr, yr) = self.ranges();
-        let mut chart = ChartBuilder::on(&root)
-            .caption(&self.title, (FONT, 22))
-            .margin(14)
-            .x_label_area_size(48)
-            .y_label_area_size(64)
-            .build_cartesian_2d(xr, yr)
-            .map_err(err)?;
+        let mut builder = ChartBuilder::on(&root);
+        builder.caption(&self.title, (FONT, 22)).margin(14).x_label_area_size(48).y_label_area_size(64);
+        let corner = if self.log_axes {
+            let mut chart = builder.build_cartesian_2d(xr.log_scale(), yr.log_scale()).map_err(err)?;
+            self.plot(&mut chart).map_err(err)?;
+            chart.plotting_area().get_pixel_range()
+        } else {
+            let mut chart = builder.build_cartesian_2d(xr, yr).map_err(err)?;
+            self.plot(&mut chart).map_err(err)?;
+            chart.plotting_area().get_pixel_range()
+        };
+        self.draw_legend(&root, (corner.0.end, corner.1.end)).map_err(err)?;
+        root.present().map_err(err)
+    }
+
+    /// The mesh, the axes' names and every series, on linear or log axes.
+    fn plot<DB: DrawingBackend, X, Y>(
+        &self,
+        chart: &mut ChartContext<'_, DB, Cartesian2d<X, Y>>,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>>
+    where
+        X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+        Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+    {
         chart
             .configure_mesh()
             .x_desc(&self.x_label)
@@ -141,28 +166,27 @@ impl Chart {
             .axis_desc_style((FONT, 17))
             .light_line_style(RGBColor(235, 235, 235))
             .bold_line_style(RGBColor(210, 210, 210))
-            .draw()
-            .map_err(err)?;
+            .draw()?;
         for s in &self.series {
             let color = s.color;
             let style = color.stroke_width(2);
-            let finite: Vec<(f64, f64)> =
-                s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite()).collect();
+            let finite: Vec<(f64, f64)> = s.points.iter().copied().filter(|&(x, y)| self.drawable(x, y)).collect();
             match s.stroke {
-                Stroke::Solid => chart.draw_series(LineSeries::new(finite, style)).map_err(err)?,
-                Stroke::Dashed => chart.draw_series(DashedLineSeries::new(finite, 8, 5, style)).map_err(err)?,
-                Stroke::Markers => {
-                    chart.draw_series(finite.into_iter().map(|p| Circle::new(p, 4, color.filled()))).map_err(err)?
-                }
+                Stroke::Solid => chart.draw_series(LineSeries::new(finite, style))?,
+                Stroke::Dashed => chart.draw_series(DashedLineSeries::new(finite, 8, 5, style))?,
+                Stroke::Markers => chart.draw_series(finite.into_iter().map(|p| Circle::new(p, 4, color.filled())))?,
             };
-            let bars = s.bars.iter().filter(|(x, lo, hi)| x.is_finite() && lo.is_finite() && hi.is_finite());
-            chart
-                .draw_series(bars.map(|&(x, lo, hi)| PathElement::new(vec![(x, lo), (x, hi)], color.stroke_width(2))))
-                .map_err(err)?;
+            let bars = s.bars.iter().filter(|&&(x, lo, hi)| self.drawable(x, lo) && self.drawable(x, hi));
+            chart.draw_series(
+                bars.map(|&(x, lo, hi)| PathElement::new(vec![(x, lo), (x, hi)], color.stroke_width(2))),
+            )?;
         }
-        let (xs, ys) = chart.plotting_area().get_pixel_range();
-        self.draw_legend(&root, (xs.end, ys.end)).map_err(err)?;
-        root.present().map_err(err)
+        Ok(())
+    }
+
+    /// Finite, and positive on log axes.
+    fn drawable(&self, x: f64, y: f64) -> bool {
+        x.is_finite() && y.is_finite() && (!self.log_axes || (x > 0.0 && y > 0.0))
     }
 }
 
@@ -230,6 +254,7 @@ mod tests {
                     ..Series::new("", vec![(1.0, 1.0)], PALETTE[2], Stroke::Markers)
                 },
             ],
+            log_axes: false,
         };
         chart.write(&dir.join("front")).unwrap();
         let svg = std::fs::read_to_string(dir.join("front.svg")).unwrap();

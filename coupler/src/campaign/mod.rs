@@ -69,6 +69,19 @@ struct CaseSpec {
     scene: String,
     #[serde(default)]
     set: Vec<String>,
+    /// The report's name for the runs this case belongs to (default: the
+    /// method, `DEM` or `MPM`); runs of one series, condition and H0 are
+    /// repeats (seeds) of one case.
+    #[serde(default)]
+    series: Option<String>,
+    /// A speed-against-error set this case is part of (`study`), and its
+    /// place in it (`level`: grows as the run gets finer, e.g. elements
+    /// per L0 or points per element); the finest level is the set's
+    /// reference.
+    #[serde(default)]
+    study: Option<String>,
+    #[serde(default)]
+    level: Option<f64>,
 }
 
 /// `--set` values of `--quick`: `all` for every case, then those of each
@@ -102,6 +115,15 @@ impl QuickOverrides {
     }
 }
 
+/// The method's family in the report: `DEM` (dry DEM and DEM–LBM), `MPM`, `LBM`.
+fn family_of(method: Method) -> &'static str {
+    match method {
+        Method::Mpm => "MPM",
+        Method::DemDry | Method::DemLbm => "DEM",
+        Method::LbmFluid => "LBM",
+    }
+}
+
 /// One run of the campaign, resolved and validated.
 #[derive(Debug, Clone)]
 pub struct Case {
@@ -120,17 +142,17 @@ pub struct Case {
     pub estimate_s: f64,
     /// `OUT/cases/<name>`.
     pub dir: PathBuf,
+    /// The report's series (default: [`Case::family`]).
+    pub series: String,
+    /// The speed-against-error set and level of the case, if any.
+    pub study: Option<(String, f64)>,
 }
 
 impl Case {
     /// `dem`/`dem_lbm` runs are DEM(-LBM), `mpm` runs MPM: the two methods
     /// the report sets side by side.
     pub fn family(&self) -> &'static str {
-        match self.method {
-            Method::Mpm => "MPM",
-            Method::DemDry | Method::DemLbm => "DEM",
-            Method::LbmFluid => "LBM",
-        }
+        family_of(self.method)
     }
 
     /// Aspect ratio H0 / L0.
@@ -181,11 +203,23 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
     let out = args.out.clone().unwrap_or_else(|| {
         PathBuf::from("runs").join(format!("campaign-{}{}", spec.campaign.name, if args.quick { "-quick" } else { "" }))
     });
-    let listed = spec.campaign.scenes.iter().map(|s| (None, s.clone(), Vec::new()));
-    let extra = spec.case.iter().map(|c| (Some(c.name.clone()), c.scene.clone(), c.set.clone()));
+    let listed = spec.campaign.scenes.iter().map(|s| (None, s.clone(), Vec::new(), None, None));
+    let mut extra = Vec::new();
+    for c in &spec.case {
+        let study = match (&c.study, c.level) {
+            (Some(study), Some(level)) if level.is_finite() => Some((study.clone(), level)),
+            (None, None) => None,
+            _ => return Err(format!(
+                "{}: case {:?}: study and level go together (level a finite number that grows as the run gets finer)",
+                file.display(),
+                c.name
+            )),
+        };
+        extra.push((Some(c.name.clone()), c.scene.clone(), c.set.clone(), c.series.clone(), study));
+    }
     let mut cases = Vec::new();
     let mut names = BTreeSet::new();
-    for (name, scene_file, mut set) in listed.chain(extra) {
+    for (name, scene_file, mut set, series, study) in listed.chain(extra) {
         let scene_path = base.join(&scene_file);
         let scene = Scene::load(&scene_path, &set).map_err(|e| format!("case {scene_file}: invalid scene:\n{e}"))?;
         if args.quick {
@@ -199,6 +233,8 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
         }
         let a = &scene.spec.analysis;
         cases.push(Case {
+            series: series.unwrap_or_else(|| family_of(scene.method()).to_string()),
+            study,
             dir: out.join("cases").join(&name),
             name,
             method: scene.method(),

@@ -111,11 +111,26 @@ fn condition_word(c: Condition) -> &'static str {
     }
 }
 
-/// Runs of one method, condition and column height (several: seeds).
-type GroupKey = (Condition, &'static str, u64);
+/// Runs of one series, condition and column height (several: seeds).
+type GroupKey = (Condition, String, u64);
 
 fn key(row: &Row) -> GroupKey {
-    (row.case.condition, row.case.family(), (row.case.column_height * 1e6).round() as u64)
+    (row.case.condition, row.case.series.clone(), (row.case.column_height * 1e6).round() as u64)
+}
+
+/// Each series' colour, in the order the campaign file names them.
+fn series_colors(rows: &[Row]) -> BTreeMap<String, plotters::style::RGBColor> {
+    let mut colors = BTreeMap::new();
+    for r in rows {
+        let n = colors.len();
+        colors.entry(r.case.series.clone()).or_insert(PALETTE[n % PALETTE.len()]);
+    }
+    colors
+}
+
+/// A series name as part of a file name.
+fn slug(name: &str) -> String {
+    name.chars().map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '_' }).collect()
 }
 
 fn number(x: f64, digits: usize) -> String {
@@ -170,11 +185,8 @@ pub fn write(campaign: &Campaign, summaries: &[Option<RunSummary>], ctx: &Contex
     runout_section(&mut md, &rows, &figures)?;
     deposits_section(&mut md, &rows, &figures)?;
     methods_table(&mut md, &rows);
+    speed_against_error(&mut md, &rows, &figures)?;
     recorded_sections(&mut md, &rows, &figures)?;
-    md.push_str(
-        "\n## Not in this report yet\n\nThe drag study (Fig. 13) and speed against error: see issue 22. \
-         `coupler export RUN --vtk` writes any run's grains, water surface and MPM points for ParaView.\n",
-    );
     let path = campaign.out.join("report.md");
     std::fs::write(&path, md).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
     Ok(path)
@@ -275,14 +287,6 @@ fn front_points(front: &[FrontSample]) -> Vec<(f64, f64)> {
     front.iter().map(|f| (f.t_norm, f.x_norm)).collect()
 }
 
-fn family_color(family: &str) -> plotters::style::RGBColor {
-    if family == "MPM" {
-        PALETTE[1]
-    } else {
-        PALETTE[0]
-    }
-}
-
 fn fronts_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), String> {
     md.push_str(
         "## Fronts (the paper's Figs. 3 and 10)\n\nEach case with both methods: the solid front (solid line) \
@@ -294,16 +298,17 @@ fn fronts_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), Strin
         let (c, _, h) = key(r);
         cases.entry((c, h)).or_default().push(r);
     }
+    let colors = series_colors(rows);
     for ((condition, h_um), runs) in &cases {
         let h0 = *h_um as f64 * 1e-6;
         let a = runs[0].case.aspect();
         let mut series = Vec::new();
         let mut labelled = std::collections::BTreeSet::new();
         for r in runs {
-            let family = r.case.family();
-            let color = family_color(family);
-            let first = labelled.insert(family);
-            let label = |what: &str| if first { format!("{family} {what}") } else { String::new() };
+            let name = &r.case.series;
+            let color = colors[name];
+            let first = labelled.insert(name);
+            let label = |what: &str| if first { format!("{name} {what}") } else { String::new() };
             series.push(Series::new(label("solid front"), front_points(&r.summary.front), color, Stroke::Solid));
             if !r.summary.liquid_front.is_empty() {
                 series.push(Series::new(
@@ -320,19 +325,21 @@ fn fronts_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), Strin
             x_label: "t / t_ref".into(),
             y_label: "(X_f − L0) / L0".into(),
             series,
+            log_axes: false,
         }
         .write(&dir.join(&stem))?;
         figure(md, &stem, &format!("fronts, {} a = {a:.2}", condition_word(*condition)));
     }
     // The paper's layout: every aspect ratio on one figure, per condition and method.
-    for ((condition, family), runs) in by_condition_and_family(rows) {
+    for ((condition, family), runs) in by_condition_and_series(rows) {
         let series = aspect_series(&runs, |r| front_points(&r.summary.front), Stroke::Solid);
-        let stem = format!("fronts_{}_{}", condition_word(condition), family.to_lowercase());
+        let stem = format!("fronts_{}_{}", condition_word(condition), slug(&family));
         Chart {
             title: format!("{} fronts, {}", family, condition_word(condition)),
             x_label: "t / t_ref".into(),
             y_label: "(X_f − L0) / L0".into(),
             series,
+            log_axes: false,
         }
         .write(&dir.join(&stem))?;
         figure(md, &stem, &format!("{family} fronts, {}, every aspect ratio", condition_word(condition)));
@@ -345,10 +352,10 @@ fn capitalised(word: &str) -> String {
     c.next().map(|f| f.to_uppercase().chain(c).collect()).unwrap_or_default()
 }
 
-fn by_condition_and_family<'a>(rows: &'a [Row<'a>]) -> BTreeMap<(Condition, &'static str), Vec<&'a Row<'a>>> {
-    let mut m: BTreeMap<(Condition, &'static str), Vec<&Row>> = BTreeMap::new();
+fn by_condition_and_series<'a>(rows: &'a [Row<'a>]) -> BTreeMap<(Condition, String), Vec<&'a Row<'a>>> {
+    let mut m: BTreeMap<(Condition, String), Vec<&Row>> = BTreeMap::new();
     for r in rows {
-        m.entry((r.case.condition, r.case.family())).or_default().push(r);
+        m.entry((r.case.condition, r.case.series.clone())).or_default().push(r);
     }
     m
 }
@@ -379,11 +386,11 @@ fn runout_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), Strin
     let mut table = String::from(
         "| method | condition | a | runs | runout (0.5 % front) | range | pile edge |\n|---|---|---|---|---|---|---|\n",
     );
-    for (n, ((condition, family), _)) in by_condition_and_family(rows).into_iter().enumerate() {
+    for (n, ((condition, family), _)) in by_condition_and_series(rows).into_iter().enumerate() {
         let mut points = Vec::new();
         let mut bars = Vec::new();
         for ((c, f, _), runs) in &groups {
-            if *c != condition || *f != family {
+            if *c != condition || f != &family {
                 continue;
             }
             let a = runs[0].case.aspect();
@@ -411,12 +418,18 @@ fn runout_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), Strin
         x_label: "a = H0 / L0".into(),
         y_label: "(L_f − L0) / L0".into(),
         series,
+        log_axes: false,
     }
     .write(&dir.join("runout"))?;
     figure(md, "runout", "runout against aspect ratio");
     md.push_str(&table);
     md.push('\n');
     Ok(())
+}
+
+/// The method of a series' runs (`DEM` or `MPM`).
+fn r_family(runs: &[&Row]) -> &'static str {
+    runs.first().map_or("DEM", |r| r.case.family())
 }
 
 fn deposits_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), String> {
@@ -428,11 +441,15 @@ fn deposits_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), Str
     for r in rows {
         by_condition.entry(r.case.condition).or_default().push(r);
     }
+    let names: Vec<String> = series_colors(rows).into_keys().collect();
     for (condition, runs) in by_condition {
         let mut series = Vec::new();
-        for family in ["DEM", "MPM"] {
-            let of: Vec<&Row> = runs.iter().copied().filter(|r| r.case.family() == family).collect();
-            let stroke = if family == "MPM" { Stroke::Dashed } else { Stroke::Solid };
+        for family in &names {
+            let of: Vec<&Row> = runs.iter().copied().filter(|r| &r.case.series == family).collect();
+            if of.is_empty() {
+                continue;
+            }
+            let stroke = if r_family(&of) == "MPM" { Stroke::Dashed } else { Stroke::Solid };
             let mut s = aspect_series(
                 &of,
                 |r| {
@@ -454,10 +471,120 @@ fn deposits_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), Str
             x_label: "(x − L0) / L0".into(),
             y_label: "h / H0".into(),
             series,
+            log_axes: false,
         }
         .write(&dir.join(&stem))?;
         figure(md, &stem, &format!("final deposits, {}", condition_word(condition)));
     }
+    Ok(())
+}
+
+/// The relative L2 distance between a front and a reference front over
+/// normalised time: √(∫ (x − x_ref)² dt / ∫ x_ref² dt) on [0, the
+/// shorter run's end], both read every 0.05 t_ref (linear between
+/// samples). NaN when the two share no time.
+pub fn front_l2(front: &[FrontSample], reference: &[FrontSample]) -> f64 {
+    let end = match (front.last(), reference.last()) {
+        (Some(a), Some(b)) => a.t_norm.min(b.t_norm),
+        _ => return f64::NAN,
+    };
+    let (mut diff, mut norm) = (0.0, 0.0);
+    let steps = (end / 0.05).floor() as usize;
+    for k in 0..=steps {
+        let t = k as f64 * 0.05;
+        let (x, r) = (interpolate(front, t), interpolate(reference, t));
+        if x.is_finite() && r.is_finite() {
+            diff += (x - r) * (x - r);
+            norm += r * r;
+        }
+    }
+    if norm > 0.0 {
+        (diff / norm).sqrt()
+    } else {
+        f64::NAN
+    }
+}
+
+/// The observed order of convergence from two errors at two levels
+/// (levels grow as runs get finer, as 1/h): ln(e_coarse/e_fine) /
+/// ln(level_fine/level_coarse).
+pub fn observed_order(coarse: (f64, f64), fine: (f64, f64)) -> f64 {
+    (coarse.1 / fine.1).ln() / (fine.0 / coarse.0).ln()
+}
+
+/// Speed against error for each `study` of the campaign: each level's
+/// wall time against its runout's and its front's error from the finest
+/// level's run, on log-log axes, and the observed orders.
+fn speed_against_error(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), String> {
+    let mut studies: BTreeMap<&str, Vec<(f64, &Row)>> = BTreeMap::new();
+    for r in rows {
+        if let Some((study, level)) = &r.case.study {
+            studies.entry(study).or_default().push((*level, r));
+        }
+    }
+    if studies.is_empty() {
+        return Ok(());
+    }
+    md.push_str(
+        "## Speed against error\n\nEach study's runs against its finest: the runout's relative error and the \
+         front's relative L2 error over normalised time (to the shorter run's end), against each run's wall \
+         time. The observed order p between two levels is ln(e_coarse / e_fine) / ln(level_fine / \
+         level_coarse) (levels grow as 1/h).\n\n",
+    );
+    let mut table = String::from(
+        "| study | level | case | wall s | runout | runout error | front L2 error | order (runout) | order (front) |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
+    );
+    let mut series = Vec::new();
+    for (n, (study, mut runs)) in studies.into_iter().enumerate() {
+        runs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (_, reference) = *runs.last().expect("a study has a run");
+        let mut points = (Vec::new(), Vec::new());
+        let mut previous: Option<(f64, f64, f64)> = None;
+        for &(level, r) in &runs {
+            let is_reference = std::ptr::eq(r, reference);
+            let runout_error = (r.summary.runout - reference.summary.runout).abs() / reference.summary.runout.abs();
+            let front_error = front_l2(&r.summary.front, &reference.summary.front);
+            let (order_runout, order_front) = match previous {
+                Some((l, er, ef)) if !is_reference => {
+                    (observed_order((l, er), (level, runout_error)), observed_order((l, ef), (level, front_error)))
+                }
+                _ => (f64::NAN, f64::NAN),
+            };
+            let _ = writeln!(
+                table,
+                "| {study} | {level} | {} | {:.1} | {:.3} | {} | {} | {} | {} |",
+                r.case.name,
+                r.wall(),
+                r.summary.runout,
+                if is_reference { "(reference)".into() } else { format!("{runout_error:.2e}") },
+                if is_reference { "(reference)".into() } else { format!("{front_error:.2e}") },
+                number(order_runout, 2),
+                number(order_front, 2),
+            );
+            if !is_reference {
+                points.0.push((r.wall(), runout_error));
+                points.1.push((r.wall(), front_error));
+                previous = Some((level, runout_error, front_error));
+            }
+        }
+        let color = PALETTE[n % PALETTE.len()];
+        series.push(Series::new(format!("{study}: runout"), points.0.clone(), color, Stroke::Solid));
+        series.push(Series::new("", points.0, color, Stroke::Markers));
+        series.push(Series::new(format!("{study}: front L2"), points.1.clone(), color, Stroke::Dashed));
+        series.push(Series::new("", points.1, color, Stroke::Markers));
+    }
+    Chart {
+        title: "Speed against error".into(),
+        x_label: "wall time, s".into(),
+        y_label: "relative error against the finest run".into(),
+        series,
+        log_axes: true,
+    }
+    .write(&dir.join("speed_error"))?;
+    figure(md, "speed_error", "speed against error");
+    md.push_str(&table);
+    md.push('\n');
     Ok(())
 }
 
@@ -521,6 +648,7 @@ fn recorded_sections(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), St
             x_label: "t / t_ref".into(),
             y_label: "fluidised share of the solid points".into(),
             series: fluidised,
+            log_axes: false,
         }
         .write(&dir.join("fluidised"))?;
         figure(md, "fluidised", "fluidised share of the MPM soil");
@@ -541,7 +669,9 @@ fn methods_table(md: &mut String, rows: &[Row]) {
     let groups = groups(rows);
     let heights: std::collections::BTreeSet<(Condition, u64)> = groups.keys().map(|(c, _, h)| (*c, *h)).collect();
     for (condition, h) in heights {
-        let (Some(dem), Some(mpm)) = (groups.get(&(condition, "DEM", h)), groups.get(&(condition, "MPM", h))) else {
+        let (Some(dem), Some(mpm)) =
+            (groups.get(&(condition, "DEM".to_string(), h)), groups.get(&(condition, "MPM".to_string(), h)))
+        else {
             continue;
         };
         let mean = |runs: &[&Row], f: &dyn Fn(&Row) -> f64| spread(runs.iter().map(|r| f(r))).map_or(f64::NAN, |s| s.0);
@@ -589,6 +719,19 @@ mod tests {
         assert!(interpolate(&front, 3.5).is_nan());
         assert!(interpolate(&front, -0.1).is_nan());
         assert!(interpolate(&[], 1.0).is_nan());
+    }
+
+    /// A front against itself is 0 away; a front 10 % longer everywhere
+    /// is 0.1 away; the order of errors halving as the level doubles is 1.
+    #[test]
+    fn front_distance_and_observed_order() {
+        let reference = [sample(0.0, 0.0), sample(1.0, 1.0), sample(2.0, 2.0)];
+        assert_eq!(front_l2(&reference, &reference), 0.0);
+        let longer = [sample(0.0, 0.0), sample(1.0, 1.1), sample(2.0, 2.2)];
+        assert!((front_l2(&longer, &reference) - 0.1).abs() < 1e-12);
+        assert!(front_l2(&[], &reference).is_nan());
+        assert!((observed_order((10.0, 0.2), (20.0, 0.1)) - 1.0).abs() < 1e-12);
+        assert!((observed_order((10.0, 0.4), (20.0, 0.1)) - 2.0).abs() < 1e-12);
     }
 
     #[test]

@@ -231,6 +231,7 @@ pub fn coordination(case: &Case, summary: &RunSummary, rec: &Recording) -> Resul
         x_label: "contacts per grain".into(),
         y_label: "fraction of grains".into(),
         series,
+        log_axes: false,
     }))
 }
 
