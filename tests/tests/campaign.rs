@@ -71,9 +71,14 @@ fn rows<'a>(report: &'a str, section: &str) -> Vec<Vec<&'a str>> {
         .collect()
 }
 
+/// The front at `t` as the report reads it: linear between samples; a
+/// run that stopped at rest keeps its last front after its end.
 fn front_at(s: &RunSummary, t: f64) -> f64 {
     let f = &s.front;
     let i = f.partition_point(|p| p.t_norm < t);
+    if i >= f.len() && s.status.as_str() == "at_rest" {
+        return f.last().map_or(f64::NAN, |p| p.x_norm);
+    }
     if i == 0 || i >= f.len() {
         return f64::NAN;
     }
@@ -166,7 +171,10 @@ fn quick_campaign_runout_and_methods_tables_follow_the_runs() {
         let ratio: f64 = m[6].trim_end_matches(" *").parse().unwrap();
         let (dem, mpm): (f64, f64) = (m[4].parse().unwrap(), m[5].parse().unwrap());
         assert!((ratio - mpm / dem).abs() < 0.006, "{m:?}");
-        assert_eq!(m[6].ends_with('*'), (mpm / dem - 1.0).abs() > 0.2, "{m:?}");
+        // The flag is set on the unrounded ratio: check it away from the threshold.
+        if ((mpm / dem - 1.0).abs() - 0.2).abs() > 0.01 {
+            assert_eq!(m[6].ends_with('*'), (mpm / dem - 1.0).abs() > 0.2, "{m:?}");
+        }
     }
 }
 
@@ -244,8 +252,8 @@ fn small_campaign(dir: &Path) -> PathBuf {
     let file = dir.join("campaign.toml");
     let scene = root.join("scenes/validation/dry_small.toml");
     let text = format!(
-        "[campaign]\nname = \"small\"\n\n[[case]]\nname = \"a\"\nscene = {scene:?}\nset = [\"output.end_time=1.5\", \"output.checkpoint_interval=0.05\"]\n\n\
-         [[case]]\nname = \"b\"\nscene = {scene:?}\nset = [\"output.end_time=1.5\", \"output.checkpoint_interval=0.05\", \"particles[0].packing.seed=2\"]\n"
+        "[campaign]\nname = \"small\"\n\n[[case]]\nname = \"a\"\nscene = {scene:?}\nset = [\"output.end_time=1.5\", \"output.stop_at_rest=false\", \"output.checkpoint_interval=0.05\"]\n\n\
+         [[case]]\nname = \"b\"\nscene = {scene:?}\nset = [\"output.end_time=1.5\", \"output.stop_at_rest=false\", \"output.checkpoint_interval=0.05\", \"particles[0].packing.seed=2\"]\n"
     );
     std::fs::write(&file, text).unwrap();
     file
@@ -264,6 +272,7 @@ fn an_interrupted_campaign_stops_cleanly_and_continues() {
         .env("SGF_CACHE_DIR", dir.join("cache"))
         .arg("campaign")
         .arg(&file)
+        .args(["--jobs", "2"])
         .arg("--out")
         .arg(&out)
         .stderr(Stdio::piped())
@@ -297,10 +306,21 @@ fn an_interrupted_campaign_stops_cleanly_and_continues() {
         let s = summary(&out.join("cases").join(case));
         assert_eq!(s.status.as_str(), "interrupted", "{case}");
     }
-    let o = campaign(&[file.to_str().unwrap()], &out, &dir.join("cache"));
+    let o = campaign(&[file.to_str().unwrap(), "--jobs", "2"], &out, &dir.join("cache"));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     assert!(err.contains("a resumed from its checkpoint") && err.contains("b resumed from its checkpoint"), "{err}");
+    // Each case's log keeps both attempts, and its wall time in the
+    // report is their sum.
+    for case in ["a", "b"] {
+        let log = std::fs::read_to_string(out.join("cases").join(format!("{case}.log"))).unwrap();
+        assert!(
+            log.contains("=== coupler campaign: started afresh") && log.contains("=== coupler campaign: resumed"),
+            "{log}"
+        );
+        let attempts = std::fs::read_to_string(out.join("cases").join(format!("{case}.attempts"))).unwrap();
+        assert_eq!(attempts.lines().map(|l| l.split(' ').next().unwrap()).collect::<Vec<_>>(), ["fresh", "resume"]);
+    }
     for case in ["a", "b"] {
         let s = summary(&out.join("cases").join(case));
         assert!(matches!(s.status.as_str(), "completed" | "at_rest"), "{case}: {}", s.status);
@@ -345,6 +365,14 @@ fn bad_campaign_files_are_refused_with_the_reason() {
         &["two cases are named \"a\""],
     );
     check(&dir.join("missing.toml"), &["cannot read campaign file"]);
+    check(
+        &write(&format!("[campaign]\nname = \"x\"\n[[case]]\nname = \"../a\"\nscene = {scene:?}\n")),
+        &["case name \"../a\""],
+    );
+    check(
+        &write(&format!("[campaign]\nname = \"x\"\n[[case]]\nname = \"a\"\nscene = {scene:?}\nstudy = \"s\"\n")),
+        &["study and level go together"],
+    );
 }
 
 /// The figures read from the recordings agree with the solvers' own
@@ -378,7 +406,7 @@ fn quick_campaign_recorded_figures_agree_with_the_summaries() {
     for r in &table {
         let s = summary(&out.join("cases").join(r[0]));
         let largest: f64 = r[1].parse().unwrap();
-        assert!((largest - s.mpm.as_ref().unwrap().fluidised_fraction_max).abs() <= 5e-5, "{r:?}");
+        assert!((largest - s.mpm.as_ref().unwrap().fluidised_fraction_max).abs() <= 1e-4, "{r:?}");
     }
 }
 

@@ -119,8 +119,13 @@ impl Chart {
     /// Writes `stem.svg` and `stem.png`.
     pub fn write(&self, stem: &Path) -> Result<(), String> {
         register_font();
-        let svg = stem.with_extension("svg");
-        let png = stem.with_extension("png");
+        // Appended, not `with_extension`: a stem may hold dots.
+        let with = |ext: &str| {
+            let mut name = stem.as_os_str().to_owned();
+            name.push(ext);
+            std::path::PathBuf::from(name)
+        };
+        let (svg, png) = (with(".svg"), with(".png"));
         self.render(SVGBackend::new(&svg, SIZE).into_drawing_area())
             .map_err(|e| format!("cannot draw {}: {e}", svg.display()))?;
         self.render(BitMapBackend::new(&png, SIZE).into_drawing_area())

@@ -18,11 +18,12 @@ use std::io::{Read, Seek, SeekFrom};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, Stdio};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use serde::Deserialize;
+use signal_hook::iterator::Signals;
 
 use schemas::scene::{Condition, Scene};
 use schemas::summary::{RunStatus, RunSummary};
@@ -142,6 +143,8 @@ pub struct Case {
     pub estimate_s: f64,
     /// `OUT/cases/<name>`.
     pub dir: PathBuf,
+    /// The domain's x origin, m (the back wall).
+    pub origin_x: f64,
     /// The report's series (default: [`Case::family`]).
     pub series: String,
     /// The speed-against-error set and level of the case, if any.
@@ -209,11 +212,13 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
         let study = match (&c.study, c.level) {
             (Some(study), Some(level)) if level.is_finite() => Some((study.clone(), level)),
             (None, None) => None,
-            _ => return Err(format!(
+            _ => {
+                return Err(format!(
                 "{}: case {:?}: study and level go together (level a finite number that grows as the run gets finer)",
                 file.display(),
                 c.name
-            )),
+            ))
+            }
         };
         extra.push((Some(c.name.clone()), c.scene.clone(), c.set.clone(), c.series.clone(), study));
     }
@@ -227,12 +232,22 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
         }
         let scene = Scene::load(&scene_path, &set)
             .map_err(|e| format!("case {scene_file}: invalid scene under --quick's values:\n{e}"))?;
+        if matches!(scene.method(), Method::DemDry | Method::DemLbm) {
+            dem_proc::setup::check_scene(&scene).map_err(|e| format!("case {scene_file}: invalid scene:\n{e}"))?;
+        }
         let name = name.unwrap_or_else(|| scene.spec.scene.name.clone());
+        if !valid_name(&name) {
+            return Err(format!(
+                "{}: case name {name:?}: use letters, digits, '_', '-' and '.', not starting with '.' (it names files and folders)",
+                file.display()
+            ));
+        }
         if !names.insert(name.clone()) {
             return Err(format!("{}: two cases are named {name:?}: give the [[case]] another name", file.display()));
         }
         let a = &scene.spec.analysis;
         cases.push(Case {
+            origin_x: scene.spec.domain.min[0],
             series: series.unwrap_or_else(|| family_of(scene.method()).to_string()),
             study,
             dir: out.join("cases").join(&name),
@@ -261,6 +276,13 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
         out,
         cases,
     })
+}
+
+/// A case name is a file name: `[A-Za-z0-9_.-]+`, not starting with a dot.
+fn valid_name(name: &str) -> bool {
+    !name.is_empty()
+        && !name.starts_with('.')
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'))
 }
 
 /// What `OUT/campaign.json` records, so that a campaign continued in the
@@ -299,6 +321,8 @@ struct Running {
     child: Child,
     started: Instant,
     resumed: bool,
+    /// When `summary.json` was last written before this attempt.
+    summary_before: Option<std::time::SystemTime>,
 }
 
 /// How the cases share the machine: `jobs` at once, `threads` each.
@@ -333,24 +357,35 @@ pub fn run(args: Args, command_line: String) -> ExitCode {
         eprintln!("coupler: {e}");
         return ExitCode::FAILURE;
     }
-    let stop = Arc::new(AtomicBool::new(false));
-    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        if let Err(e) = signal_hook::flag::register(signal, Arc::clone(&stop)) {
+    // SIGINT and SIGTERM are counted: the first stops the campaign
+    // gently, later ones escalate (`interrupt`).
+    let stops = Arc::new(AtomicUsize::new(0));
+    let mut signals = match Signals::new([signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM]) {
+        Ok(s) => s,
+        Err(e) => {
             eprintln!("coupler: cannot install the signal handler: {e}");
             return ExitCode::FAILURE;
         }
-    }
+    };
+    let counter = Arc::clone(&stops);
+    std::thread::spawn(move || {
+        for _ in signals.forever() {
+            counter.fetch_add(1, Ordering::SeqCst);
+        }
+    });
     let schedule = Schedule::new(args.jobs);
     let started = Instant::now();
-    let outcome = execute(&campaign, schedule, &stop);
+    let outcome = execute(&campaign, schedule, &stops);
     let wall = started.elapsed().as_secs_f64();
     let finished: Vec<Option<RunSummary>> = campaign.cases.iter().map(Case::finished_summary).collect();
     let context = report::Context { command_line, schedule, wall_seconds: wall, interrupted: outcome.interrupted };
     match report::write(&campaign, &finished, &context) {
         Ok(path) => eprintln!("coupler: report {}", path.display()),
         Err(e) => {
-            eprintln!("coupler: {e}");
-            return ExitCode::FAILURE;
+            eprintln!("coupler: cannot write the report: {e}");
+            if !outcome.interrupted {
+                return ExitCode::FAILURE;
+            }
         }
     }
     let done = finished.iter().flatten().count();
@@ -390,7 +425,7 @@ struct Outcome {
 /// Runs every case not yet finished, `schedule.jobs` at a time, longest
 /// estimate first (the last to start are the short ones, so the cores
 /// finish together).
-fn execute(campaign: &Campaign, schedule: Schedule, stop: &AtomicBool) -> Outcome {
+fn execute(campaign: &Campaign, schedule: Schedule, stops: &AtomicUsize) -> Outcome {
     let total = campaign.cases.len();
     let mut pending: Vec<usize> = (0..total).filter(|&i| campaign.cases[i].finished_summary().is_none()).collect();
     pending.sort_by(|&a, &b| campaign.cases[b].estimate_s.total_cmp(&campaign.cases[a].estimate_s));
@@ -407,59 +442,75 @@ fn execute(campaign: &Campaign, schedule: Schedule, stop: &AtomicBool) -> Outcom
     );
     let mut progress = Progress::new(campaign, &pending);
     let mut running: Vec<Running> = Vec::new();
-    // A case whose resume failed is run afresh, once.
-    let mut fresh_after_failed_resume = BTreeSet::new();
+    // A case whose resume was refused (its checkpoints unusable) is run
+    // afresh, once; one that resumed and then failed is not.
+    let mut fresh_after_refused_resume = BTreeSet::new();
     let mut queue: std::collections::VecDeque<usize> = pending.into();
+    let mut started = 0;
     let mut last_report = Instant::now();
+    let stopping = || stops.load(Ordering::SeqCst) > 0;
     loop {
-        if stop.load(Ordering::Relaxed) {
-            interrupt(&mut running, campaign);
+        if stopping() {
+            interrupt(&mut running, campaign, stops);
             return Outcome { interrupted: true };
         }
-        while running.len() < schedule.jobs {
+        while running.len() < schedule.jobs && !stopping() {
             let Some(index) = queue.pop_front() else { break };
             let case = &campaign.cases[index];
-            let resume = case.has_checkpoint() && !fresh_after_failed_resume.contains(&index);
+            let resume = case.has_checkpoint() && !fresh_after_refused_resume.contains(&index);
+            let summary_before = summary_stamp(case);
             match spawn(case, schedule.threads, resume) {
                 Ok(child) => {
+                    started += 1;
                     eprintln!(
                         "coupler: [{}/{total}] {} {}",
-                        progress.done + running.len() + 1 + skipped,
+                        skipped + started,
                         case.name,
                         if resume { "resumed from its checkpoint" } else { "started" }
                     );
-                    running.push(Running { index, child, started: Instant::now(), resumed: resume });
+                    running.push(Running { index, child, started: Instant::now(), resumed: resume, summary_before });
                 }
                 Err(e) => {
                     eprintln!("coupler: {}: cannot start: {e}", case.name);
-                    progress.finish(index, 0.0);
+                    progress.finish(index, 0.0, false);
                 }
             }
         }
         if running.is_empty() {
-            return Outcome { interrupted: false };
+            return Outcome { interrupted: stopping() };
         }
         std::thread::sleep(Duration::from_millis(100));
         let mut i = 0;
         while i < running.len() {
             match running[i].child.try_wait() {
-                Ok(Some(_)) | Err(_) => {
+                Ok(None) => i += 1,
+                Err(e) => {
+                    // Not known to have ended: keep watching it.
+                    eprintln!("coupler: cannot poll {}: {e}", campaign.cases[running[i].index].name);
+                    i += 1;
+                }
+                Ok(Some(_)) => {
                     let r = running.swap_remove(i);
                     let case = &campaign.cases[r.index];
                     let elapsed = r.started.elapsed().as_secs_f64();
+                    record_attempt(case, r.resumed, elapsed);
                     let summary = case.finished_summary();
-                    if summary.is_none() && r.resumed && !stop.load(Ordering::Relaxed) {
-                        eprintln!("coupler: {}: its resume failed (see its log); running it afresh", case.name);
-                        fresh_after_failed_resume.insert(r.index);
+                    let never_started = summary_stamp(case) == r.summary_before;
+                    if summary.is_none() && r.resumed && never_started && !stopping() {
+                        eprintln!(
+                            "coupler: {}: its checkpoints were refused (see its log); running it afresh",
+                            case.name
+                        );
+                        fresh_after_refused_resume.insert(r.index);
                         queue.push_front(r.index);
+                        started -= 1;
                         continue;
                     }
-                    progress.finish(r.index, elapsed);
+                    progress.finish(r.index, elapsed, summary.is_some());
                     eprintln!("coupler: {} {}", case.name, outcome_line(case, summary.as_ref(), elapsed));
                     eprintln!("coupler: {}", progress.line(&running, schedule));
                     last_report = Instant::now();
                 }
-                Ok(None) => i += 1,
             }
         }
         if last_report.elapsed() > Duration::from_secs(60) {
@@ -467,6 +518,37 @@ fn execute(campaign: &Campaign, schedule: Schedule, stop: &AtomicBool) -> Outcom
             last_report = Instant::now();
         }
     }
+}
+
+/// When the case's `summary.json` was last written (None: there is none).
+fn summary_stamp(case: &Case) -> Option<std::time::SystemTime> {
+    std::fs::metadata(case.dir.join("summary.json")).and_then(|m| m.modified()).ok()
+}
+
+/// `OUT/cases/<name>.attempts`: one line per attempt (`fresh` or `resume`
+/// and its wall seconds), so that a resumed run's cost is the sum of its
+/// attempts since the last fresh start.
+fn attempts_path(case: &Case) -> PathBuf {
+    case.dir.with_file_name(format!("{}.attempts", case.name))
+}
+
+fn record_attempt(case: &Case, resumed: bool, elapsed: f64) {
+    use std::io::Write as _;
+    let path = attempts_path(case);
+    let append = resumed && path.exists();
+    let file = std::fs::OpenOptions::new().create(true).append(append).write(true).truncate(!append).open(&path);
+    if let Ok(mut f) = file {
+        // Best effort: without it the report shows the last attempt's wall time.
+        let _ = writeln!(f, "{} {elapsed:.3}", if resumed { "resume" } else { "fresh" });
+    }
+}
+
+/// The wall seconds of every attempt of a case since its last fresh
+/// start, if the campaign ran it.
+pub fn attempts_wall(case: &Case) -> Option<(f64, usize)> {
+    let text = std::fs::read_to_string(attempts_path(case)).ok()?;
+    let seconds: Vec<f64> = text.lines().filter_map(|l| l.split_whitespace().nth(1)?.parse().ok()).collect();
+    (!seconds.is_empty()).then(|| (seconds.iter().sum(), seconds.len()))
 }
 
 fn outcome_line(case: &Case, summary: Option<&RunSummary>, elapsed: f64) -> String {
@@ -487,7 +569,19 @@ fn outcome_line(case: &Case, summary: Option<&RunSummary>, elapsed: f64) -> Stri
 fn spawn(case: &Case, threads: usize, resume: bool) -> std::io::Result<Child> {
     let exe = std::env::current_exe()?;
     std::fs::create_dir_all(case.dir.parent().expect("a case dir has a parent"))?;
-    let log = std::fs::File::create(case.dir.with_file_name(format!("{}.log", case.name)))?;
+    let log_path = case.dir.with_file_name(format!("{}.log", case.name));
+    // Every attempt's output is kept, each under a header.
+    let mut log = std::fs::OpenOptions::new().create(true).append(true).open(&log_path)?;
+    {
+        use std::io::Write as _;
+        let since_epoch = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+        writeln!(
+            log,
+            "=== coupler campaign: {} at unix time {} ===",
+            if resume { "resumed from its checkpoint" } else { "started afresh" },
+            since_epoch.as_secs()
+        )?;
+    }
     let mut cmd = Command::new(exe);
     cmd.arg("run");
     if resume {
@@ -515,17 +609,42 @@ fn spawn(case: &Case, threads: usize, resume: bool) -> std::io::Result<Child> {
     cmd.spawn()
 }
 
-/// Passes the stop on to every running case (each ends its run and
-/// keeps what it recorded and its checkpoints), and waits for them.
-fn interrupt(running: &mut [Running], campaign: &Campaign) {
-    eprintln!("coupler: stopping {} running case(s); each keeps its recording and checkpoints", running.len());
-    for r in running.iter() {
-        // SAFETY: kill with a pid of our own child.
-        unsafe { libc::kill(r.child.id() as i32, libc::SIGINT) };
-    }
-    for r in running.iter_mut() {
-        let _ = r.child.wait();
-        eprintln!("coupler: {} stopped", campaign.cases[r.index].name);
+/// Passes the stop on to every running case and waits for them: the
+/// first signal a SIGINT each (each ends its run, keeping its recording
+/// and checkpoints), a second one another SIGINT (a case's coupler then
+/// kills its solvers), a third SIGKILL to each case's process group.
+fn interrupt(running: &mut Vec<Running>, campaign: &Campaign, stops: &AtomicUsize) {
+    eprintln!(
+        "coupler: stopping {} running case(s); each keeps its recording and checkpoints (Ctrl-C again to hurry them)",
+        running.len()
+    );
+    let mut forwarded = 0;
+    while !running.is_empty() {
+        let seen = stops.load(Ordering::SeqCst);
+        while forwarded < seen {
+            forwarded += 1;
+            for r in running.iter() {
+                let pid = r.child.id() as i32;
+                // SAFETY: signalling our own children (their groups: they
+                // lead them, process_group(0)).
+                unsafe {
+                    if forwarded <= 2 {
+                        libc::kill(pid, libc::SIGINT);
+                    } else {
+                        libc::kill(-pid, libc::SIGKILL);
+                    }
+                }
+            }
+        }
+        running.retain_mut(|r| match r.child.try_wait() {
+            Ok(None) => true,
+            _ => {
+                record_attempt(&campaign.cases[r.index], r.resumed, r.started.elapsed().as_secs_f64());
+                eprintln!("coupler: {} stopped", campaign.cases[r.index].name);
+                false
+            }
+        });
+        std::thread::sleep(Duration::from_millis(50));
     }
 }
 
@@ -553,11 +672,12 @@ impl<'a> Progress<'a> {
         }
     }
 
-    fn finish(&mut self, index: usize, elapsed: f64) {
+    /// A case ended; `finished`: it ran to its end (only those calibrate the estimates).
+    fn finish(&mut self, index: usize, elapsed: f64, finished: bool) {
         let estimate = self.campaign.cases[index].estimate_s;
         self.done += 1;
         self.remaining_estimate -= estimate;
-        if elapsed > 0.0 && estimate > 0.0 {
+        if finished && elapsed > 0.0 && estimate > 0.0 {
             self.spent += elapsed;
             self.spent_estimate += estimate;
         }
@@ -567,6 +687,7 @@ impl<'a> Progress<'a> {
         // Wall seconds per estimated second: 1 until a case has finished.
         let scale = if self.spent_estimate > 0.0 { self.spent / self.spent_estimate } else { 1.0 };
         let mut left = self.remaining_estimate * scale;
+        let mut longest: f64 = 0.0;
         let mut now = Vec::new();
         for r in running {
             let case = &self.campaign.cases[r.index];
@@ -579,12 +700,14 @@ impl<'a> Progress<'a> {
             // The running case's estimate is in `remaining_estimate`:
             // replace it by what its own progress says.
             left += remaining - case.estimate_s * scale;
+            longest = longest.max(remaining);
             now.push(match fraction {
                 Some(f) => format!("{} {:.0} %", case.name, 100.0 * f),
                 None => format!("{} {elapsed:.0} s", case.name),
             });
         }
-        let eta = left.max(0.0) / schedule.jobs as f64;
+        // The cores share what is left, but no sooner than the longest running case ends.
+        let eta = (left.max(0.0) / schedule.jobs as f64).max(longest);
         format!(
             "{} of {} done, running: {}; ETA {}",
             self.done,

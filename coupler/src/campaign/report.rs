@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use schemas::measures::FrontSample;
 use schemas::scene::Condition;
-use schemas::summary::RunSummary;
+use schemas::summary::{RunStatus, RunSummary};
 
 use super::figures::{Chart, Series, Stroke, PALETTE};
 use super::snapshots::{self, Recording};
@@ -38,33 +38,49 @@ pub struct Row<'a> {
 impl Row<'_> {
     /// The mass front at `t_norm`, linearly between samples; NaN outside the run.
     pub fn front_at(&self, t_norm: f64) -> f64 {
-        interpolate(&self.summary.front, t_norm)
+        let x = interpolate(&self.summary.front, t_norm);
+        match self.summary.front.last() {
+            // A run stopped at rest keeps its last front.
+            Some(last) if x.is_nan() && t_norm > last.t_norm && self.summary.status == RunStatus::AtRest => last.x_norm,
+            _ => x,
+        }
     }
 
     /// Where the deposit falls below one grain diameter: the DEM's own
-    /// measure (`runout_pile`), and the same rule on the MPM's profile.
+    /// measure (`runout_pile`, the width-averaged height), or on the MPM's
+    /// profile (the highest point top per bin) the first crossing of one
+    /// diameter, linear between bin centres.
     pub fn pile_edge(&self) -> f64 {
         if let Some(p) = self.summary.runout_pile {
             return p;
         }
-        let dep = &self.summary.deposit;
-        if dep.len() < 2 || self.case.grain_diameter <= 0.0 {
+        let (dep, d) = (&self.summary.deposit, self.case.grain_diameter);
+        if dep.is_empty() || d <= 0.0 {
             return f64::NAN;
         }
-        let bin = dep[1][0] - dep[0][0];
-        let edge = dep
-            .iter()
-            .find(|p| p[1] < self.case.grain_diameter)
-            .map_or(dep[dep.len() - 1][0] + bin / 2.0, |p| p[0] - bin / 2.0);
-        (edge - self.case.column_length) / self.case.column_length
+        let edge = match dep.iter().position(|p| p[1] < d) {
+            None => dep[dep.len() - 1][0],
+            Some(0) => dep[0][0],
+            Some(i) => {
+                let (a, b) = (dep[i - 1], dep[i]);
+                a[0] + (b[0] - a[0]) * (a[1] - d) / (a[1] - b[1])
+            }
+        };
+        let l0 = self.case.column_length;
+        (edge - self.case.origin_x - l0) / l0
     }
 
     pub fn liquid_front_end(&self) -> f64 {
         self.summary.liquid_front.last().map_or(f64::NAN, |f| f.x_norm)
     }
 
+    /// The run's wall time: every attempt's since its last fresh start
+    /// when the campaign ran it (a resumed run costs all its attempts),
+    /// else the summary's.
     pub fn wall(&self) -> f64 {
-        self.summary.wall_seconds_total.unwrap_or(self.summary.wall_seconds)
+        super::attempts_wall(self.case)
+            .map(|w| w.0)
+            .unwrap_or(self.summary.wall_seconds_total.unwrap_or(self.summary.wall_seconds))
     }
 
     /// Relative change of the liquid's mass over the run (the solids'
@@ -133,6 +149,14 @@ fn slug(name: &str) -> String {
     name.chars().map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '_' }).collect()
 }
 
+fn scientific(x: f64) -> String {
+    if x.is_finite() {
+        format!("{x:.2e}")
+    } else {
+        "–".into()
+    }
+}
+
 fn number(x: f64, digits: usize) -> String {
     if x.is_finite() {
         format!("{x:.digits$}")
@@ -185,7 +209,7 @@ pub fn write(campaign: &Campaign, summaries: &[Option<RunSummary>], ctx: &Contex
     runout_section(&mut md, &rows, &figures)?;
     deposits_section(&mut md, &rows, &figures)?;
     methods_table(&mut md, &rows);
-    speed_against_error(&mut md, &rows, &figures)?;
+    speed_against_error(&mut md, &rows, &campaign.cases, &figures)?;
     recorded_sections(&mut md, &rows, &figures)?;
     let path = campaign.out.join("report.md");
     std::fs::write(&path, md).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
@@ -250,14 +274,14 @@ fn runs_table(md: &mut String, campaign: &Campaign, summaries: &[Option<RunSumma
         let mach = summary.lbm.as_ref().map_or(f64::NAN, |l| l.max_mach);
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {:.2} | {} | {:.2} | {:.1} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             case.name,
             case.method.name(),
             condition_word(case.condition),
             case.aspect(),
             summary.status,
-            summary.sim_time / summary.t_ref,
-            row.wall(),
+            number(summary.sim_time / summary.t_ref, 2),
+            number(row.wall(), 1),
             row.throughput(),
             number(summary.runout, 3),
             number(row.pile_edge(), 3),
@@ -488,6 +512,9 @@ pub fn front_l2(front: &[FrontSample], reference: &[FrontSample]) -> f64 {
         (Some(a), Some(b)) => a.t_norm.min(b.t_norm),
         _ => return f64::NAN,
     };
+    if !(end.is_finite() && end >= 0.0) {
+        return f64::NAN;
+    }
     let (mut diff, mut norm) = (0.0, 0.0);
     let steps = (end / 0.05).floor() as usize;
     for k in 0..=steps {
@@ -515,7 +542,7 @@ pub fn observed_order(coarse: (f64, f64), fine: (f64, f64)) -> f64 {
 /// Speed against error for each `study` of the campaign: each level's
 /// wall time against its runout's and its front's error from the finest
 /// level's run, on log-log axes, and the observed orders.
-fn speed_against_error(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), String> {
+fn speed_against_error(md: &mut String, rows: &[Row], cases: &[Case], dir: &Path) -> Result<(), String> {
     let mut studies: BTreeMap<&str, Vec<(f64, &Row)>> = BTreeMap::new();
     for r in rows {
         if let Some((study, level)) = &r.case.study {
@@ -538,7 +565,19 @@ fn speed_against_error(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), 
     let mut series = Vec::new();
     for (n, (study, mut runs)) in studies.into_iter().enumerate() {
         runs.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let (_, reference) = *runs.last().expect("a study has a run");
+        let (finest_level, reference) = *runs.last().expect("a study has a run");
+        // The reference is the finest level of the campaign file, finished or not.
+        let finest = cases
+            .iter()
+            .filter_map(|c| c.study.as_ref().filter(|(s, _)| s == study).map(|(_, l)| (*l, &c.name)))
+            .max_by(|a, b| a.0.total_cmp(&b.0));
+        if let Some((level, name)) = finest.filter(|(level, _)| *level > finest_level) {
+            let _ = writeln!(
+                table,
+                "| {study} | {level} | {name} | not finished: no errors until the finest run has | | | | | |"
+            );
+            continue;
+        }
         let mut points = (Vec::new(), Vec::new());
         let mut previous: Option<(f64, f64, f64)> = None;
         for &(level, r) in &runs {
@@ -553,12 +592,12 @@ fn speed_against_error(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), 
             };
             let _ = writeln!(
                 table,
-                "| {study} | {level} | {} | {:.1} | {:.3} | {} | {} | {} | {} |",
+                "| {study} | {level} | {} | {} | {} | {} | {} | {} | {} |",
                 r.case.name,
-                r.wall(),
-                r.summary.runout,
-                if is_reference { "(reference)".into() } else { format!("{runout_error:.2e}") },
-                if is_reference { "(reference)".into() } else { format!("{front_error:.2e}") },
+                number(r.wall(), 1),
+                number(r.summary.runout, 3),
+                if is_reference { "(reference)".into() } else { scientific(runout_error) },
+                if is_reference { "(reference)".into() } else { scientific(front_error) },
                 number(order_runout, 2),
                 number(order_front, 2),
             );
@@ -609,19 +648,43 @@ fn recorded_sections(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), St
             let _ = writeln!(snaps, "{}: no recording ({} is missing)\n", r.case.name, path.display());
             continue;
         }
-        let rec = Recording::read(&path)?;
+        // One unreadable recording costs its own figures, not the report.
+        let rec = match Recording::read(&path) {
+            Ok(rec) => rec,
+            Err(e) => {
+                let _ = writeln!(snaps, "{}: {e}\n", r.case.name);
+                continue;
+            }
+        };
         let stem = format!("snapshots_{}", r.case.name);
-        if snapshots::snapshots(r.case, r.summary, &rec, &dir.join(format!("{stem}.png")))? {
-            let _ = writeln!(snaps, "![snapshots of {}](figures/{stem}.png)\n", r.case.name);
+        match snapshots::snapshots(r.case, r.summary, &rec, &dir.join(format!("{stem}.png"))) {
+            Ok(true) => {
+                let _ = writeln!(snaps, "![snapshots of {}](figures/{stem}.png)\n", r.case.name);
+            }
+            Ok(false) => {}
+            Err(e) => {
+                let _ = writeln!(snaps, "{}: no snapshots: {e}\n", r.case.name);
+            }
         }
         if r.case.family() == "DEM" {
-            if let Some(chart) = snapshots::coordination(r.case, r.summary, &rec)? {
+            match snapshots::coordination(r.case, r.summary, &rec).and_then(|chart| {
                 let stem = format!("coordination_{}", r.case.name);
-                chart.write(&dir.join(&stem))?;
-                figure(&mut coordination, &stem, &format!("coordination numbers of {}", r.case.name));
+                chart.map(|c| c.write(&dir.join(&stem)).map(|_| stem)).transpose()
+            }) {
+                Ok(Some(stem)) => figure(&mut coordination, &stem, &format!("coordination numbers of {}", r.case.name)),
+                Ok(None) => {}
+                Err(e) => {
+                    let _ = writeln!(coordination, "{}: {e}\n", r.case.name);
+                }
             }
         } else if r.case.family() == "MPM" {
-            let share = snapshots::fluidised_share(r.summary, &rec)?;
+            let share = match snapshots::fluidised_share(r.summary, &rec) {
+                Ok(share) => share,
+                Err(e) => {
+                    let _ = writeln!(fluidised_table, "| {} | {e} | |", r.case.name);
+                    continue;
+                }
+            };
             let largest = share.iter().map(|p| p.1).fold(f64::NAN, f64::max);
             let _ = writeln!(
                 fluidised_table,
@@ -630,10 +693,14 @@ fn recorded_sections(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), St
                 number(largest, 4),
                 r.summary.mpm.as_ref().map_or("–".into(), |m| number(m.fluidised_fraction_max, 4))
             );
-            let k = mpm_rows.iter().position(|m| m.case.name == r.case.name).unwrap_or(0);
+            // Coloured by aspect ratio, as the other figures.
+            let mut aspects: Vec<u64> = mpm_rows.iter().map(|m| (m.case.aspect() * 1000.0).round() as u64).collect();
+            aspects.sort_unstable();
+            aspects.dedup();
+            let k = aspects.iter().position(|&a| a == (r.case.aspect() * 1000.0).round() as u64).unwrap_or(0);
             let stroke = if r.case.condition == Condition::Dry { Stroke::Dashed } else { Stroke::Solid };
             let label = format!("{} a = {:.2}", condition_word(r.case.condition), r.case.aspect());
-            fluidised.push(Series::new(label, share, PALETTE[k % 5], stroke));
+            fluidised.push(Series::new(label, share, PALETTE[k % PALETTE.len()], stroke));
         }
     }
     md.push_str(&snaps);

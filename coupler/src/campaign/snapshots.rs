@@ -104,7 +104,7 @@ pub fn snapshots(case: &Case, summary: &RunSummary, rec: &Recording, path: &Path
         .into_iter()
         .filter(|x| x.is_finite())
         .fold(0.0, f64::max);
-    let x_max = l0 * (1.0 + reach) * 1.08;
+    let x_max = case.origin_x + l0 * (1.0 + reach) * 1.08;
     let z_max = h0 * 1.15;
     let u_ref = (9.81 * h0).sqrt();
     let tolerance = 0.3 * summary.t_ref;
@@ -171,7 +171,7 @@ fn draw_snapshots(
     const WIDTH: u32 = 1100;
     const HEADER: u32 = 34;
     let plot_width = WIDTH as f64 - 70.0;
-    let panel_height = ((plot_width * z_max / x_max) as u32 + 44).max(110);
+    let panel_height = ((plot_width * z_max / x_max) as u32 + 44).clamp(110, 420);
     let root = BitMapBackend::new(path, (WIDTH, HEADER + panel_height * panels.len() as u32)).into_drawing_area();
     root.fill(&WHITE)?;
     let (header, body) = root.split_vertically(HEADER);
@@ -241,10 +241,12 @@ fn mean(v: &[f32]) -> f64 {
 
 /// Fraction of grains with 0, 1, … contacts, to the largest seen.
 pub fn coordination_histogram(z: &[f32]) -> Vec<(f64, f64)> {
-    let top = z.iter().map(|&v| v.round() as usize).max().unwrap_or(0);
+    // A grain touches at most 12 equal spheres; more than 64 is a broken record.
+    let bin = |v: f32| (v.round().clamp(0.0, 64.0)) as usize;
+    let top = z.iter().map(|&v| bin(v)).max().unwrap_or(0);
     let mut counts = vec![0usize; top + 1];
     for &v in z {
-        counts[v.round().max(0.0) as usize] += 1;
+        counts[bin(v)] += 1;
     }
     counts.iter().enumerate().map(|(n, &c)| (n as f64, c as f64 / z.len().max(1) as f64)).collect()
 }
