@@ -788,7 +788,10 @@ fn finish_summary(
     if interrupted {
         summary.status = RunStatus::Interrupted;
     } else if failed {
-        summary.status = RunStatus::Failed;
+        // A watchdog's stop is the run's outcome (`unstable`, its cause
+        // in /log); any other failure of a process is `failed`.
+        let watchdog = parts.iter().any(|(_, _, s)| s.status == RunStatus::Unstable);
+        summary.status = if watchdog { RunStatus::Unstable } else { RunStatus::Failed };
     }
     let path = out.join("summary.json");
     if let Err(e) = std::fs::write(&path, serde_json::to_string_pretty(&summary).expect("serialises")) {

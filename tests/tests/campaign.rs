@@ -449,3 +449,27 @@ fn a_study_is_reported_as_speed_against_error() {
     let svg = std::fs::read_to_string(out.join("figures/speed_error.svg")).unwrap();
     assert!(svg.contains("element size: runout") && svg.contains("element size: front L2"));
 }
+
+/// The hard cases (`scenes/hard`) in their quick form: every case ends as
+/// its campaign file says it must (runs, or stops naming the cause), none
+/// panics, hangs or gives NaN; the lattice driven past Mach 0.5 stops
+/// with `unstable` and the fix in the report.
+#[test]
+fn hard_cases_end_as_expected() {
+    let dir = scratch_dir("campaign_hard");
+    let out = dir.join("out");
+    let o = campaign(&["scenes/hard", "--quick"], &out, &dir.join("cache"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let table = rows(&report, "## Expected outcomes");
+    assert_eq!(table.len(), 11, "{table:?}");
+    for r in &table {
+        assert_eq!(r[5], "as expected", "{r:?}");
+    }
+    let blow_up = table.iter().find(|r| r[0] == "lbm_blow_up").expect("the blow-up case");
+    assert_eq!(blow_up[2], "unstable", "{blow_up:?}");
+    assert!(blow_up[6].contains("Mach") && blow_up[6].contains("lower the time step"), "{blow_up:?}");
+    let s = summary(&out.join("cases/lbm_blow_up"));
+    assert_eq!(s.status.as_str(), "unstable");
+}

@@ -158,6 +158,10 @@ fn a_blow_up_under_the_coupler_is_reported_with_its_fix_in_a_log() {
         "the coupler's last line: {last}"
     );
     assert!(!process_running("dem_proc", &out) && !process_running("lbm_proc", &out));
+    // The summary says what ended it: the watchdog, not a crash.
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["status"], "unstable");
 }
 
 /// The settling sphere on a 16x finer lattice (~18 M cells: seconds of

@@ -83,6 +83,45 @@ struct CaseSpec {
     study: Option<String>,
     #[serde(default)]
     level: Option<f64>,
+    /// The outcome the case must have (hard cases); without it the case
+    /// must complete or come to rest.
+    #[serde(default)]
+    expect: Option<Expect>,
+    /// Wall seconds after which a case still running is stopped and
+    /// counted as a hang.
+    #[serde(default)]
+    max_wall: Option<f64>,
+}
+
+/// What a case must end as.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Expect {
+    pub outcome: ExpectedOutcome,
+    /// Words its log must hold (the cause a stop names).
+    #[serde(default)]
+    pub message: Option<String>,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum ExpectedOutcome {
+    /// Completed or came to rest.
+    Runs,
+    /// Stopped by its watchdog (`unstable`), naming the cause.
+    Stops,
+    /// Either; never a panic, a hang or a NaN.
+    RunsOrStops,
+}
+
+impl ExpectedOutcome {
+    pub fn word(self) -> &'static str {
+        match self {
+            ExpectedOutcome::Runs => "runs",
+            ExpectedOutcome::Stops => "stops",
+            ExpectedOutcome::RunsOrStops => "runs or stops",
+        }
+    }
 }
 
 /// `--set` values of `--quick`: `all` for every case, then those of each
@@ -149,6 +188,8 @@ pub struct Case {
     pub series: String,
     /// The speed-against-error set and level of the case, if any.
     pub study: Option<(String, f64)>,
+    pub expect: Option<Expect>,
+    pub max_wall: Option<f64>,
 }
 
 impl Case {
@@ -169,6 +210,44 @@ impl Case {
         let text = std::fs::read_to_string(self.dir.join("summary.json")).ok()?;
         let summary: RunSummary = serde_json::from_str(&text).ok()?;
         matches!(summary.status, RunStatus::Completed | RunStatus::AtRest | RunStatus::Unstable).then_some(summary)
+    }
+
+    /// Whether the case ended as it must: its expectation, or completed
+    /// or at rest without one; never a panic in its log or a hang. The
+    /// reason when not.
+    pub fn verdict(&self, summary: Option<&RunSummary>) -> Result<(), String> {
+        let log = std::fs::read_to_string(self.dir.with_file_name(format!("{}.log", self.name))).unwrap_or_default();
+        if log.contains("panicked at") {
+            return Err("a process panicked (see its log)".into());
+        }
+        if self.timeout_path().exists() {
+            return Err(format!("still running after max_wall = {} s: a hang", self.max_wall.unwrap_or(f64::NAN)));
+        }
+        let Some(s) = summary else { return Err("did not finish".into()) };
+        let ran = matches!(s.status, RunStatus::Completed | RunStatus::AtRest);
+        let outcome = self.expect.as_ref().map_or(ExpectedOutcome::Runs, |e| e.outcome);
+        let fits = match outcome {
+            ExpectedOutcome::Runs => ran,
+            ExpectedOutcome::Stops => s.status == RunStatus::Unstable,
+            ExpectedOutcome::RunsOrStops => ran || s.status == RunStatus::Unstable,
+        };
+        if !fits {
+            return Err(format!("{} where it must be: {}", s.status, outcome.word()));
+        }
+        if let Some(words) = self.expect.as_ref().and_then(|e| e.message.as_deref()) {
+            if s.status == RunStatus::Unstable && !log.contains(words) {
+                return Err(format!("stopped without naming {words:?} in its log"));
+            }
+        }
+        if ran && !s.sim_time.is_finite() {
+            return Err("its summary holds NaN".into());
+        }
+        Ok(())
+    }
+
+    /// Marks a case stopped for running past `max_wall`.
+    fn timeout_path(&self) -> PathBuf {
+        self.dir.with_file_name(format!("{}.timeout", self.name))
     }
 
     /// Whether the case's processes left a checkpoint to continue from.
@@ -206,7 +285,7 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
     let out = args.out.clone().unwrap_or_else(|| {
         PathBuf::from("runs").join(format!("campaign-{}{}", spec.campaign.name, if args.quick { "-quick" } else { "" }))
     });
-    let listed = spec.campaign.scenes.iter().map(|s| (None, s.clone(), Vec::new(), None, None));
+    let listed = spec.campaign.scenes.iter().map(|s| (None, s.clone(), Vec::new(), None, None, None, None));
     let mut extra = Vec::new();
     for c in &spec.case {
         let study = match (&c.study, c.level) {
@@ -220,11 +299,22 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
             ))
             }
         };
-        extra.push((Some(c.name.clone()), c.scene.clone(), c.set.clone(), c.series.clone(), study));
+        if c.max_wall.is_some_and(|w| !(w > 0.0 && w.is_finite())) {
+            return Err(format!("{}: case {:?}: max_wall must be > 0 s", file.display(), c.name));
+        }
+        extra.push((
+            Some(c.name.clone()),
+            c.scene.clone(),
+            c.set.clone(),
+            c.series.clone(),
+            study,
+            c.expect.clone(),
+            c.max_wall,
+        ));
     }
     let mut cases = Vec::new();
     let mut names = BTreeSet::new();
-    for (name, scene_file, mut set, series, study) in listed.chain(extra) {
+    for (name, scene_file, mut set, series, study, expect, max_wall) in listed.chain(extra) {
         let scene_path = base.join(&scene_file);
         let scene = Scene::load(&scene_path, &set).map_err(|e| format!("case {scene_file}: invalid scene:\n{e}"))?;
         if args.quick {
@@ -250,6 +340,8 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
             origin_x: scene.spec.domain.min[0],
             series: series.unwrap_or_else(|| family_of(scene.method()).to_string()),
             study,
+            expect,
+            max_wall,
             dir: out.join("cases").join(&name),
             name,
             method: scene.method(),
@@ -323,6 +415,8 @@ struct Running {
     resumed: bool,
     /// When `summary.json` was last written before this attempt.
     summary_before: Option<std::time::SystemTime>,
+    /// Stopped for running past the case's `max_wall`.
+    timed_out: bool,
 }
 
 /// How the cases share the machine: `jobs` at once, `threads` each.
@@ -400,7 +494,7 @@ pub fn run(args: Args, command_line: String) -> ExitCode {
         .cases
         .iter()
         .zip(&finished)
-        .filter(|(_, s)| !matches!(s, Some(s) if matches!(s.status, RunStatus::Completed | RunStatus::AtRest)))
+        .filter(|(c, s)| c.verdict(s.as_ref()).is_err())
         .map(|(c, _)| c.name.as_str())
         .collect();
     if bad.is_empty() {
@@ -408,7 +502,7 @@ pub fn run(args: Args, command_line: String) -> ExitCode {
         ExitCode::SUCCESS
     } else {
         eprintln!(
-            "coupler: campaign {}: {} of {} cases did not complete ({}); see OUT/cases/<name>.log",
+            "coupler: campaign {}: {} of {} cases did not end as they must ({}); see the report and OUT/cases/<name>.log",
             campaign.name,
             bad.len(),
             campaign.cases.len(),
@@ -468,7 +562,15 @@ fn execute(campaign: &Campaign, schedule: Schedule, stops: &AtomicUsize) -> Outc
                         case.name,
                         if resume { "resumed from its checkpoint" } else { "started" }
                     );
-                    running.push(Running { index, child, started: Instant::now(), resumed: resume, summary_before });
+                    let _ = std::fs::remove_file(case.timeout_path());
+                    running.push(Running {
+                        index,
+                        child,
+                        started: Instant::now(),
+                        resumed: resume,
+                        summary_before,
+                        timed_out: false,
+                    });
                 }
                 Err(e) => {
                     eprintln!("coupler: {}: cannot start: {e}", case.name);
@@ -480,6 +582,17 @@ fn execute(campaign: &Campaign, schedule: Schedule, stops: &AtomicUsize) -> Outc
             return Outcome { interrupted: stopping() };
         }
         std::thread::sleep(Duration::from_millis(100));
+        for r in running.iter_mut() {
+            let case = &campaign.cases[r.index];
+            let limit = case.max_wall.unwrap_or(f64::INFINITY);
+            if !r.timed_out && r.started.elapsed().as_secs_f64() > limit {
+                eprintln!("coupler: {} still runs after max_wall = {limit} s: stopping it (a hang)", case.name);
+                let _ = std::fs::write(case.timeout_path(), format!("{limit}\n"));
+                // SAFETY: signalling our own child.
+                unsafe { libc::kill(r.child.id() as i32, libc::SIGINT) };
+                r.timed_out = true;
+            }
+        }
         let mut i = 0;
         while i < running.len() {
             match running[i].child.try_wait() {

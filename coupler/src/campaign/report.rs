@@ -209,6 +209,7 @@ pub fn write(campaign: &Campaign, summaries: &[Option<RunSummary>], ctx: &Contex
     runout_section(&mut md, &rows, &figures)?;
     deposits_section(&mut md, &rows, &figures)?;
     methods_table(&mut md, &rows);
+    outcomes_section(&mut md, campaign, summaries);
     speed_against_error(&mut md, &rows, &campaign.cases, &figures)?;
     recorded_sections(&mut md, &rows, &figures)?;
     let path = campaign.out.join("report.md");
@@ -501,6 +502,55 @@ fn deposits_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), Str
         figure(md, &stem, &format!("final deposits, {}", condition_word(condition)));
     }
     Ok(())
+}
+
+/// Every case with an expected outcome (hard cases): what it must do,
+/// what it did, and the evidence (the cause its log names when stopped;
+/// mass drift and time reached when it ran).
+fn outcomes_section(md: &mut String, campaign: &Campaign, summaries: &[Option<RunSummary>]) {
+    let expecting: Vec<(&Case, Option<&RunSummary>)> = campaign
+        .cases
+        .iter()
+        .zip(summaries)
+        .filter(|(c, _)| c.expect.is_some() || c.max_wall.is_some())
+        .map(|(c, s)| (c, s.as_ref()))
+        .collect();
+    if expecting.is_empty() {
+        return;
+    }
+    md.push_str(
+        "## Expected outcomes\n\nEach case must run (completed or at rest), stop with a message naming the \
+         cause, or either; never panic, hang or give NaN.\n\n| case | expected | got | t_end / t_ref | liquid mass drift | \
+         verdict | what its log says |\n|---|---|---|---|---|---|---|\n",
+    );
+    for (case, summary) in expecting {
+        let expected = case.expect.as_ref().map_or("runs", |e| e.outcome.word());
+        let log = std::fs::read_to_string(case.dir.with_file_name(format!("{}.log", case.name))).unwrap_or_default();
+        let words = case.expect.as_ref().and_then(|e| e.message.clone());
+        // The line naming the cause, or the solver's last word.
+        let said = words
+            .as_deref()
+            .and_then(|w| log.lines().find(|l| l.contains(w)))
+            .or_else(|| {
+                log.lines().rev().find(|l| l.contains("unstable") || l.contains("at_rest") || l.contains("completed"))
+            })
+            .unwrap_or("")
+            .replace('|', "/");
+        let said: String = said.chars().take(320).collect();
+        let (got, t, drift) = match summary {
+            Some(s) => {
+                let row = Row { case, summary: s };
+                (s.status.to_string(), number(s.sim_time / s.t_ref, 2), scientific(row.liquid_mass_drift()))
+            }
+            None => ("not finished".into(), "–".into(), "–".into()),
+        };
+        let verdict = match case.verdict(summary) {
+            Ok(()) => "as expected".to_string(),
+            Err(why) => format!("**not as expected**: {why}"),
+        };
+        let _ = writeln!(md, "| {} | {expected} | {got} | {t} | {drift} | {verdict} | {said} |", case.name);
+    }
+    md.push('\n');
 }
 
 /// The relative L2 distance between a front and a reference front over
