@@ -171,12 +171,7 @@ pub fn run(
             if let Some(held) = &c.held {
                 world.set_held_loads(held);
             }
-            let line = format!(
-                "resumed from {} (t = {:.5} s, step {})",
-                opts.resume.as_ref().expect("resuming").display(),
-                file.driver.time,
-                file.driver.steps
-            );
+            let line = file.resumed_line(opts.resume.as_ref().expect("resuming"));
             progress.log(&line);
             (world, c.packing.clone(), vec![line], c.coordination_initial, Some(c.fronts.clone()))
         }

@@ -196,12 +196,7 @@ pub fn run(
         })
     })?;
     if let Some((file, _)) = &resumed {
-        let line = format!(
-            "resumed from {} (t = {:.5} s, step {})",
-            opts.resume.as_ref().expect("resuming").display(),
-            file.driver.time,
-            file.driver.steps
-        );
+        let line = file.resumed_line(opts.resume.as_ref().expect("resuming"));
         progress.log(&line);
         rec.log(file.driver.time, log_level::INFO, &line)?;
     } else {

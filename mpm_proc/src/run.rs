@@ -287,8 +287,7 @@ fn run_on_pool(
             mpm.state = c.state;
             mpm.apply_gate_fixities();
             mpm.restore_pore_pressure_peak(c.pore_pressure_peak);
-            let msg =
-                format!("resumed from {} (t = {:.5} s, step {})", path.display(), file.driver.time, file.driver.steps);
+            let msg = file.resumed_line(path);
             progress.log(&msg);
             rec.log(file.driver.time, log_level::INFO, &msg)?;
             checkpoints.resumed = Some(file.driver);

@@ -100,6 +100,14 @@ pub struct CheckpointFile {
     pub solver: Vec<u8>,
 }
 
+impl CheckpointFile {
+    /// The line a process logs when it continues from this checkpoint,
+    /// read from `path`.
+    pub fn resumed_line(&self, path: &std::path::Path) -> String {
+        format!("resumed from {} (t = {:.5} s, step {})", path.display(), self.driver.time, self.driver.steps)
+    }
+}
+
 /// Why a checkpoint cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum CheckpointError {
