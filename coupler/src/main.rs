@@ -85,6 +85,10 @@ enum Command {
         /// (default: one case per core).
         #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(1..))]
         jobs: Option<u16>,
+        /// Validate the campaign file and every case's scene, print the
+        /// cases and what is already finished, and run nothing.
+        #[arg(long)]
+        check: bool,
     },
     /// Write a recording's points as VTK files for ParaView: grains,
     /// the water's surface, MPM points, each a time series (`.pvd`).
@@ -161,10 +165,15 @@ fn main() -> ExitCode {
             };
             runtime.block_on(supervise::run(loaded, out, threads, quiet, resume.is_some()))
         }
-        Command::Campaign { campaign: source, quick, out, jobs } => {
+        Command::Campaign { campaign: source, quick, out, jobs, check } => {
             let command_line =
                 std::iter::once("coupler".to_string()).chain(std::env::args().skip(1)).collect::<Vec<_>>().join(" ");
-            campaign::run(campaign::Args { source, quick, out, jobs: jobs.map(usize::from) }, command_line)
+            let args = campaign::Args { source, quick, out, jobs: jobs.map(usize::from) };
+            if check {
+                campaign::check(&args)
+            } else {
+                campaign::run(args, command_line)
+            }
         }
         Command::Check { scene, set, method } => match load(&scene, &overrides(method, set)) {
             Ok(s) => {

@@ -9,10 +9,16 @@ fn toml_files(dir: &Path, out: &mut Vec<PathBuf>) {
         let path = entry.unwrap().path();
         if path.is_dir() {
             toml_files(&path, out);
-        } else if path.extension().is_some_and(|e| e == "toml") {
+        } else if path.extension().is_some_and(|e| e == "toml") && !is_campaign(&path) {
             out.push(path);
         }
     }
+}
+
+/// Campaign files (`coupler campaign`) live beside their scenes:
+/// `campaign.toml` or `<name>.campaign.toml`.
+fn is_campaign(path: &Path) -> bool {
+    path.file_name().is_some_and(|n| n.to_string_lossy().ends_with("campaign.toml"))
 }
 
 #[test]

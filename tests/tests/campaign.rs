@@ -473,3 +473,39 @@ fn hard_cases_end_as_expected() {
     let s = summary(&out.join("cases/lbm_blow_up"));
     assert_eq!(s.status.as_str(), "unstable");
 }
+
+/// Every campaign file shipped (`campaign.toml`, `*.campaign.toml` under
+/// `scenes/`) is valid: `coupler campaign FILE --check` loads it and every
+/// case's scene (and under `--quick`), and lists each case.
+#[test]
+fn every_shipped_campaign_file_checks() {
+    fn campaign_files(dir: &Path, out: &mut Vec<PathBuf>) {
+        for entry in std::fs::read_dir(dir).unwrap().flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                campaign_files(&path, out);
+            } else if path.to_string_lossy().ends_with("campaign.toml") {
+                out.push(path);
+            }
+        }
+    }
+    let mut files = Vec::new();
+    campaign_files(&repo_root().join("scenes"), &mut files);
+    assert!(files.len() >= 5, "{files:?}");
+    let dir = scratch_dir("campaign_check");
+    for file in &files {
+        for quick in [false, true] {
+            let mut args = vec![file.to_str().unwrap()];
+            if quick {
+                args.push("--quick");
+            }
+            args.push("--check");
+            let o = campaign(&args, &dir.join("out"), &dir.join("cache"));
+            let text = String::from_utf8_lossy(&o.stdout);
+            assert!(o.status.success(), "{}: {}", file.display(), String::from_utf8_lossy(&o.stderr));
+            let cases = text.lines().filter(|l| l.starts_with("case ")).count();
+            assert!(cases >= 8, "{}: {cases} cases\n{text}", file.display());
+        }
+    }
+    assert!(!dir.join("out").exists(), "--check writes nothing");
+}

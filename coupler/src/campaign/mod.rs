@@ -438,6 +438,48 @@ impl Schedule {
     }
 }
 
+/// `coupler campaign --check`: the campaign's cases as they would run,
+/// and which have finished; nothing is run or written.
+pub fn check(args: &Args) -> ExitCode {
+    let campaign = match load(args) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("coupler: {e}");
+            return ExitCode::from(EXIT_BAD_SCENE as u8);
+        }
+    };
+    println!(
+        "campaign     {}{} — {}\nfile         {}\noutput       {}",
+        campaign.name,
+        if campaign.quick { " (quick)" } else { "" },
+        campaign.description,
+        campaign.file.display(),
+        campaign.out.display()
+    );
+    let mut total = 0.0;
+    for c in &campaign.cases {
+        let study = c.study.as_ref().map(|(s, l)| format!(", study {s:?} level {l}")).unwrap_or_default();
+        let expect = c.expect.as_ref().map(|e| format!(", must {}", e.outcome.word())).unwrap_or_default();
+        let done = c.finished_summary().map(|s| format!(", finished ({})", s.status)).unwrap_or_default();
+        println!(
+            "case         {:<28} {:<8} {:<10} a = {:.2}, series {:?}, ~{:.0} s at full speed{study}{expect}{done}",
+            c.name,
+            c.method.name(),
+            format!("{:?}", c.condition).to_lowercase(),
+            c.aspect(),
+            c.series,
+            c.estimate_s
+        );
+        total += c.estimate_s;
+    }
+    println!(
+        "estimate     {} cases, ~{} of the solvers' own estimates (coupler check's)",
+        campaign.cases.len(),
+        human_seconds(total)
+    );
+    ExitCode::SUCCESS
+}
+
 /// Runs `coupler campaign`.
 pub fn run(args: Args, command_line: String) -> ExitCode {
     let campaign = match load(&args) {
