@@ -1269,6 +1269,30 @@ fn check_solver_tables(v: &mut Validator, spec: &SceneSpec, mpm: bool) {
                 );
             }
         }
+        // The lattice closes every face of the box (lbm_proc::setup); an open
+        // face is open to the grains only. Where liquid lies against it, a
+        // grain reaching it would be held by a wall the DEM does not have
+        // (measured: a sphere settling onto an open floor stopped 0.4 mm
+        // past it, held by the liquid's no-slip edge).
+        if !spec.particles.is_empty() {
+            for face in Face::ALL.iter().filter(|f| !d.walls.contains(f)) {
+                let (a, sign) = face.axis_and_sign();
+                let touches = spec.fluids.iter().any(|f| {
+                    let gap = if sign > 0.0 { f.region.min[a] - d.min[a] } else { d.max[a] - f.region.max[a] };
+                    gap < lbm.spacing
+                });
+                if touches {
+                    v.fail(
+                        "domain.walls",
+                        format!(
+                            "{} is open but liquid lies against it: the lattice is closed on every face, so grains reaching it would be held there by the liquid's wall, which the DEM does not have; list {} in domain.walls, or keep the fluid regions at least one lattice cell from it",
+                            face.name(),
+                            face.name()
+                        ),
+                    );
+                }
+            }
+        }
         if lbm.spacing > 0.0 && lbm.time_step > 0.0 {
             for a in 0..3 {
                 let cells = (d.max[a] - d.min[a]) / lbm.spacing;

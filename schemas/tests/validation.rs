@@ -84,6 +84,9 @@ fn lbm_table_defaults_and_errors() {
     let s = load(text, &[]).unwrap();
     let lbm = s.lbm();
     assert_eq!((lbm.smagorinsky, lbm.collision, lbm.trt_magic), (0.16, Collision::Bgk, 3.0 / 16.0));
+    // The open top is clear of the liquid; filled to the top, it is refused.
+    let e = load(text, &["fluids[0].region.max[2]=0.12"]).expect_err("liquid against the open top");
+    assert!(e.names_key("domain.walls") && e.to_string().contains("z_max is open"), "{e}");
     let without = &SATURATED[..SATURATED.find("[lbm]").unwrap()];
     let e = load(without, &[]).unwrap_err();
     assert!(e.names_key("lbm") && e.to_string().contains("spacing"), "{e}");
@@ -95,6 +98,12 @@ fn lbm_table_defaults_and_errors() {
         ("lbm.smagorinsky=-0.1", "lbm.smagorinsky", ">= 0"),
         ("lbm.mach_limit=1.5", "lbm.mach_limit", "(0, 1)"),
         ("lbm.collision=\"cumulant\"", "lbm.collision", "unknown variant"),
+        // The lattice is closed on every face: liquid against a face open to the grains.
+        (
+            "domain.walls=[\"x_max\", \"y_min\", \"y_max\", \"z_min\"]",
+            "domain.walls",
+            "x_min is open but liquid lies against it",
+        ),
     ] {
         let e = load(text, &[set]).expect_err(set);
         assert!(e.names_key(key), "{set}: error does not name {key}: {e}");
