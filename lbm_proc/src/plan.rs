@@ -134,6 +134,20 @@ fn plan_forcing(scene: &Scene, units: &Units, tau0: f64, p: &mut Plan) {
                     100.0 * head
                 ));
             }
+            // The lattice's mean density is the liquid's, so the liquid at
+            // the bottom is ~head/2 denser; a grain lighter than that floats.
+            let rho_l = s.fluids[0].density;
+            for block in &s.particles {
+                let excess = block.density / rho_l - 1.0;
+                if excess < 0.5 * head {
+                    p.warn(format!(
+                        "grains \"{}\" are {:.2} % denser than the liquid, less than the lattice's compression at depth (up to {:.1} %): they would rise or sink too slowly there; use lbm.hydrostatics = \"buoyancy\" (liquid filling a closed box) or a smaller lbm.time_step (the compression goes as dt^2)",
+                        block.name,
+                        100.0 * excess,
+                        50.0 * head
+                    ));
+                }
+            }
         }
         Hydrostatics::Buoyancy => {
             p.line("hydrostatics", "buoyancy: the liquid feels no gravity; each grain's load gets -rho_L V g")

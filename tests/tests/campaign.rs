@@ -463,9 +463,16 @@ fn hard_cases_end_as_expected() {
     assert!(o.status.success(), "{err}");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     let table = rows(&report, "## Expected outcomes");
-    assert_eq!(table.len(), 11, "{table:?}");
+    assert_eq!(table.len(), 14, "{table:?}");
     for r in &table {
         assert_eq!(r[5], "as expected", "{r:?}");
+        // A case that runs with liquid keeps its mass: the free surface's
+        // bookkeeping is exact to round-off in f32 populations (measured
+        // 2e-8 to 1.4e-6 over the suite's runs).
+        if r[1] == "runs" && r[4] != "–" {
+            let drift: f64 = r[4].parse().unwrap_or_else(|_| panic!("mass drift {:?} in {r:?}", r[4]));
+            assert!(drift.abs() < 1e-5, "{}: liquid mass drift {drift:e}", r[0]);
+        }
     }
     let blow_up = table.iter().find(|r| r[0] == "lbm_blow_up").expect("the blow-up case");
     assert_eq!(blow_up[2], "unstable", "{blow_up:?}");
