@@ -218,6 +218,17 @@ fn quick_campaign_draws_every_figure() {
     for label in ["DEM dry", "DEM saturated", "MPM dry", "MPM saturated"] {
         assert!(runout.contains(label), "runout figure lacks {label}");
     }
+    // The campaign's two [[compare]] figures: both methods in two rows,
+    // three times in three columns of 600 px.
+    for name in ["methods_h030", "methods_h060"] {
+        assert!(report.contains(&format!("](figures/compare_{name}.png)")), "no comparison {name}");
+        let png = std::fs::read(out.join(format!("figures/compare_{name}.png"))).unwrap();
+        let size = |at: usize| u32::from_be_bytes(png[at..at + 4].try_into().unwrap());
+        let (width, height) = (size(16), size(20));
+        assert_eq!(width, 1800, "{name}: three columns of 600 px");
+        assert!((34 + 2 * 110..=34 + 2 * 420).contains(&height), "{name}: two rows, {height} px");
+    }
+    assert!(report.contains("Rows top to bottom: `sat_h060`, `mpm_sat_h060`; columns at t/t_ref = 1, 2, 4."));
 }
 
 /// The same command again runs nothing that finished; a case whose
@@ -373,6 +384,16 @@ fn bad_campaign_files_are_refused_with_the_reason() {
         &write(&format!("[campaign]\nname = \"x\"\n[[case]]\nname = \"a\"\nscene = {scene:?}\nstudy = \"s\"\n")),
         &["study and level go together"],
     );
+    let one_case = format!("[campaign]\nname = \"x\"\n[[case]]\nname = \"a\"\nscene = {scene:?}\n");
+    for (compare, reason) in [
+        ("name = \"f\"\ncases = [\"b\"]\ntimes = [1.0]", "no case is named \"b\""),
+        ("name = \"f\"\ncases = [\"a\"]\ntimes = []", "0 times; give 1 to 8"),
+        ("name = \"f\"\ncases = [\"a\"]\ntimes = [-1.0]", "time -1 is not a t/t_ref >= 0"),
+        ("name = \"f/g\"\ncases = [\"a\"]\ntimes = [1.0]", "compare \"f/g\": use letters"),
+        ("name = \"f\"\ncases = [\"a\"]\ntimes = [1.0]\nwhen = 2", "when"),
+    ] {
+        check(&write(&format!("{one_case}[[compare]]\n{compare}\n")), &[reason]);
+    }
 }
 
 /// The figures read from the recordings agree with the solvers' own

@@ -49,7 +49,29 @@ struct CampaignFile {
     case: Vec<CaseSpec>,
     #[serde(default)]
     quick: QuickOverrides,
+    /// Figures that set chosen cases' snapshots side by side.
+    #[serde(default)]
+    compare: Vec<Comparison>,
 }
+
+/// A figure of snapshots side by side (e.g. the paper's Fig. 13): a row per
+/// case, a column per time.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Comparison {
+    /// Names the figure's file, `figures/compare_<name>.png`.
+    pub name: String,
+    /// The figure's heading in the report.
+    #[serde(default)]
+    pub title: String,
+    /// Case names, one row each, top to bottom.
+    pub cases: Vec<String>,
+    /// Normalised times t/t_ref, one column each, left to right.
+    pub times: Vec<f64>,
+}
+
+/// Most rows and columns a comparison draws (the PNG grows with both).
+const COMPARISON_MAX_PANELS: usize = 8;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -268,6 +290,7 @@ pub struct Campaign {
     pub quick: bool,
     pub out: PathBuf,
     pub cases: Vec<Case>,
+    pub comparisons: Vec<Comparison>,
 }
 
 /// Reads and checks the campaign file and every case's scene before any
@@ -360,6 +383,7 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
             file.display()
         ));
     }
+    check_comparisons(&spec.compare, &cases).map_err(|e| format!("{}: {e}", file.display()))?;
     Ok(Campaign {
         name: spec.campaign.name,
         description: spec.campaign.description,
@@ -367,7 +391,36 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
         quick: args.quick,
         out,
         cases,
+        comparisons: spec.compare,
     })
+}
+
+/// Each `[[compare]]` names a file, rows of existing cases and times at or
+/// after the start.
+fn check_comparisons(comparisons: &[Comparison], cases: &[Case]) -> Result<(), String> {
+    let mut names = BTreeSet::new();
+    for c in comparisons {
+        if !valid_name(&c.name) {
+            return Err(format!(
+                "compare {:?}: use letters, digits, '_', '-' and '.' in its name (it names the figure's file)",
+                c.name
+            ));
+        }
+        if !names.insert(&c.name) {
+            return Err(format!("two [[compare]] figures are named {:?}", c.name));
+        }
+        let sizes = [("cases", c.cases.len()), ("times", c.times.len())];
+        if let Some((what, n)) = sizes.iter().find(|(_, n)| *n == 0 || *n > COMPARISON_MAX_PANELS) {
+            return Err(format!("compare {:?}: {n} {what}; give 1 to {COMPARISON_MAX_PANELS}", c.name));
+        }
+        if let Some(unknown) = c.cases.iter().find(|n| !cases.iter().any(|k| &k.name == *n)) {
+            return Err(format!("compare {:?}: no case is named {unknown:?}", c.name));
+        }
+        if let Some(t) = c.times.iter().find(|t| !(t.is_finite() && **t >= 0.0)) {
+            return Err(format!("compare {:?}: time {t} is not a t/t_ref >= 0", c.name));
+        }
+    }
+    Ok(())
 }
 
 /// A case name is a file name: `[A-Za-z0-9_.-]+`, not starting with a dot.

@@ -12,8 +12,8 @@ use schemas::scene::Condition;
 use schemas::summary::{RunStatus, RunSummary};
 
 use super::figures::{Chart, Series, Stroke, PALETTE};
-use super::snapshots::{self, Recording};
-use super::{Campaign, Case, Schedule};
+use super::snapshots::{self, ComparisonRow, Recording};
+use super::{Campaign, Case, Comparison, Schedule};
 
 /// How the campaign was run, for the report's header.
 #[derive(Debug, Clone)]
@@ -211,7 +211,7 @@ pub fn write(campaign: &Campaign, summaries: &[Option<RunSummary>], ctx: &Contex
     methods_table(&mut md, &rows);
     outcomes_section(&mut md, campaign, summaries);
     speed_against_error(&mut md, &rows, &campaign.cases, &figures)?;
-    recorded_sections(&mut md, &rows, &figures)?;
+    recorded_sections(&mut md, &rows, &campaign.comparisons, &figures)?;
     let path = campaign.out.join("report.md");
     std::fs::write(&path, md).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
     Ok(path)
@@ -678,8 +678,12 @@ fn speed_against_error(md: &mut String, rows: &[Row], cases: &[Case], dir: &Path
 }
 
 /// The figures drawn from each run's recording: snapshots of every case,
-/// coordination numbers of the DEM's, the fluidised share of the MPM's.
-fn recorded_sections(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), String> {
+/// the campaign's side-by-side comparisons, coordination numbers of the
+/// DEM's, the fluidised share of the MPM's. Each recording is read once.
+fn recorded_sections(md: &mut String, rows: &[Row], comparisons: &[Comparison], dir: &Path) -> Result<(), String> {
+    // For each comparison, its rows as they are read (by case name).
+    let mut compared: Vec<BTreeMap<&str, Result<Option<ComparisonRow>, String>>> =
+        comparisons.iter().map(|_| BTreeMap::new()).collect();
     let mut snaps = String::from(
         "## Snapshots (the paper's Figs. 2, 4, 5 and 9)\n\nSide views (x–z) at t/t_ref = 0, 1, 2, 4 and at the \
          end of each run; all the flume's width projected. Raster images (PNG).\n\n",
@@ -706,6 +710,11 @@ fn recorded_sections(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), St
                 continue;
             }
         };
+        for (c, rows) in comparisons.iter().zip(compared.iter_mut()) {
+            if c.cases.contains(&r.case.name) {
+                rows.insert(&r.case.name, snapshots::comparison_row(r.case, r.summary, &rec, &c.times));
+            }
+        }
         let stem = format!("snapshots_{}", r.case.name);
         match snapshots::snapshots(r.case, r.summary, &rec, &dir.join(format!("{stem}.png"))) {
             Ok(true) => {
@@ -753,6 +762,7 @@ fn recorded_sections(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), St
             fluidised.push(Series::new(label, share, PALETTE[k % PALETTE.len()], stroke));
         }
     }
+    comparison_section(md, comparisons, compared, dir);
     md.push_str(&snaps);
     md.push_str(&coordination);
     if !fluidised.is_empty() {
@@ -773,6 +783,53 @@ fn recorded_sections(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), St
         md.push('\n');
     }
     Ok(())
+}
+
+/// The campaign's `[[compare]]` figures: the listed cases' snapshots side
+/// by side, a row per case and a column per time; a case without a
+/// recording is named in place of its row.
+fn comparison_section(
+    md: &mut String,
+    comparisons: &[Comparison],
+    mut compared: Vec<BTreeMap<&str, Result<Option<ComparisonRow>, String>>>,
+    dir: &Path,
+) {
+    for (c, found) in comparisons.iter().zip(compared.iter_mut()) {
+        let title = if c.title.is_empty() { format!("Side by side: {}", c.name) } else { c.title.clone() };
+        let _ = writeln!(
+            md,
+            "## {title}\n\nRows top to bottom: {}; columns at t/t_ref = {}. Soil points brown (fluidised \
+             orange), pore water blue; grains by speed, water surface blue.\n",
+            c.cases.iter().map(|n| format!("`{n}`")).collect::<Vec<_>>().join(", "),
+            c.times.iter().map(|t| format!("{t}")).collect::<Vec<_>>().join(", ")
+        );
+        let mut rows = Vec::new();
+        let mut missing = Vec::new();
+        for name in &c.cases {
+            match found.remove(name.as_str()) {
+                Some(Ok(Some(row))) => rows.push(row),
+                Some(Ok(None)) => missing.push(format!("{name}: its recording holds no points")),
+                Some(Err(e)) => missing.push(format!("{name}: {e}")),
+                None => missing.push(format!("{name}: not finished or no recording")),
+            }
+        }
+        for m in &missing {
+            let _ = writeln!(md, "- {m}");
+        }
+        if rows.is_empty() {
+            md.push('\n');
+            continue;
+        }
+        let stem = format!("compare_{}", c.name);
+        match snapshots::comparison(&title, rows, &dir.join(format!("{stem}.png"))) {
+            Ok(()) => {
+                let _ = writeln!(md, "\n![{title}](figures/{stem}.png)\n");
+            }
+            Err(e) => {
+                let _ = writeln!(md, "\n{e}\n");
+            }
+        }
+    }
 }
 
 /// Both methods case by case (the runs' means); `*` where their pile

@@ -96,119 +96,181 @@ struct Layer {
 /// MPM points coloured by phase status with the pore water. Returns false
 /// when the recording holds no points to draw.
 pub fn snapshots(case: &Case, summary: &RunSummary, rec: &Recording, path: &Path) -> Result<bool, String> {
-    let mpm = case.family() == "MPM";
-    let main = if mpm { topics::MPM_SOLID } else { topics::DEM_PARTICLES };
-    let Some(last) = rec.last_time(main) else { return Ok(false) };
+    let Some(last) = rec.last_time(main_topic(case)) else { return Ok(false) };
+    let mut rows = Vec::new();
+    for t in snapshot_times(summary, last) {
+        let layers = layers_at(case, summary, rec, t)?;
+        rows.push(vec![(format!("t / t_ref = {:.1}", t / summary.t_ref), layers)]);
+    }
+    let heading = format!("{}: {} (a = {:.2}); {}", case.name, case.method.name(), case.aspect(), legend(case));
+    draw_grid(&heading, &rows, extent(case, summary), path)
+        .map_err(|e| format!("cannot draw {}: {e}", path.display()))?;
+    Ok(true)
+}
+
+/// One case of a side-by-side figure: its layers at each of the figure's
+/// times (t/t_ref), a panel each, labelled; and its extent (m).
+pub struct ComparisonRow {
+    panels: Vec<(String, Vec<Layer>)>,
+    extent: (f64, f64),
+}
+
+/// The panels of `case` at the normalised `times` (a time past the run's
+/// end draws its last frame, labelled so). None when the recording holds
+/// no points to draw.
+pub fn comparison_row(
+    case: &Case,
+    summary: &RunSummary,
+    rec: &Recording,
+    times: &[f64],
+) -> Result<Option<ComparisonRow>, String> {
+    let Some(last) = rec.last_time(main_topic(case)) else { return Ok(None) };
+    let mut panels = Vec::new();
+    for tn in times {
+        let t = (tn * summary.t_ref).min(last);
+        let label = if t < tn * summary.t_ref {
+            format!("{}, end (t / t_ref = {:.1})", case.name, t / summary.t_ref)
+        } else {
+            format!("{}, t / t_ref = {tn:.1}", case.name)
+        };
+        panels.push((label, layers_at(case, summary, rec, t)?));
+    }
+    Ok(Some(ComparisonRow { panels, extent: extent(case, summary) }))
+}
+
+/// Writes a PNG of the rows side by side on common axes: a row per case,
+/// a column per time (the paper's Fig. 13 layout).
+pub fn comparison(heading: &str, rows: Vec<ComparisonRow>, path: &Path) -> Result<(), String> {
+    let extent = rows.iter().fold((0.0, 0.0), |(x, z): (f64, f64), r| (x.max(r.extent.0), z.max(r.extent.1)));
+    let grid: Vec<Vec<(String, Vec<Layer>)>> = rows.into_iter().map(|r| r.panels).collect();
+    draw_grid(heading, &grid, extent, path).map_err(|e| format!("cannot draw {}: {e}", path.display()))
+}
+
+fn main_topic(case: &Case) -> &'static str {
+    if case.family() == "MPM" {
+        topics::MPM_SOLID
+    } else {
+        topics::DEM_PARTICLES
+    }
+}
+
+fn legend(case: &Case) -> &'static str {
+    if case.family() == "MPM" {
+        "soil points brown, fluidised (n > n_max) orange; pore water blue"
+    } else {
+        "grains coloured by speed / √(g H0), viridis 0 → 1; water surface blue"
+    }
+}
+
+/// How far a case's panels reach (m): x to its farthest front, solid or
+/// liquid, z a little above H0.
+fn extent(case: &Case, summary: &RunSummary) -> (f64, f64) {
     let (l0, h0) = (case.column_length, case.column_height);
     let reach = [summary.runout, summary.liquid_front.last().map_or(0.0, |f| f.x_norm), 1.0]
         .into_iter()
         .filter(|x| x.is_finite())
         .fold(0.0, f64::max);
-    let x_max = case.origin_x + l0 * (1.0 + reach) * 1.08;
-    let z_max = h0 * 1.15;
-    let u_ref = (9.81 * h0).sqrt();
-    let tolerance = 0.3 * summary.t_ref;
-    let mut panels = Vec::new();
-    for t in snapshot_times(summary, last) {
-        let mut layers = Vec::new();
-        if mpm {
-            if let Some(f) = rec.frame_near(topics::MPM_LIQUID, t, tolerance)? {
-                let spacing = 0.35 * (l0 * h0 / f.points.len().max(1) as f64).sqrt();
-                let blue = RGBColor(120, 175, 235);
-                layers.push(Layer {
-                    points: f.points.iter().map(|p| (p[0] as f64, p[2] as f64, spacing, blue)).collect(),
-                });
-            }
-            if let Some(f) = rec.frame_near(main, t, tolerance)? {
-                let spacing = 0.45 * (l0 * h0 / f.points.len().max(1) as f64).sqrt();
-                let fluidised = f.array("fluidised").unwrap_or_default();
-                let points = f
-                    .points
-                    .iter()
-                    .enumerate()
-                    .map(|(i, p)| {
-                        let c =
-                            if fluidised.get(i).is_some_and(|v| *v > 0.5) { PALETTE[1] } else { RGBColor(120, 90, 50) };
-                        (p[0] as f64, p[2] as f64, spacing, c)
-                    })
-                    .collect();
-                layers.push(Layer { points });
-            }
-        } else {
-            if let Some(f) = rec.frame_near(topics::LBM_SURFACE, t, tolerance)? {
-                let blue = RGBColor(90, 160, 230);
-                layers
-                    .push(Layer { points: f.points.iter().map(|p| (p[0] as f64, p[2] as f64, 4e-4, blue)).collect() });
-            }
-            if let Some(f) = rec.frame_near(main, t, tolerance)? {
-                let (radius, speed) = (f.array("radius").unwrap_or_default(), f.array("speed").unwrap_or_default());
-                // Far grains first, so the near wall's are on top.
-                let mut order: Vec<usize> = (0..f.points.len()).collect();
-                order.sort_by(|&a, &b| f.points[b][1].total_cmp(&f.points[a][1]));
-                let points = order
-                    .into_iter()
-                    .map(|i| {
-                        let s = (speed.get(i).copied().unwrap_or(0.0) as f64 / u_ref).clamp(0.0, 1.0);
-                        let r = radius.get(i).copied().unwrap_or(1e-3) as f64;
-                        (f.points[i][0] as f64, f.points[i][2] as f64, r, ViridisRGB::get_color(s as f32))
-                    })
-                    .collect();
-                layers.push(Layer { points });
-            }
-        }
-        panels.push((t / summary.t_ref, layers));
-    }
-    draw_snapshots(case, &panels, (x_max, z_max), path).map_err(|e| format!("cannot draw {}: {e}", path.display()))?;
-    Ok(true)
+    (case.origin_x + l0 * (1.0 + reach) * 1.08, h0 * 1.15)
 }
 
-fn draw_snapshots(
-    case: &Case,
-    panels: &[(f64, Vec<Layer>)],
+/// What one panel of `case` draws at time `t` (s): the frames nearest to
+/// it within 0.3 t_ref.
+fn layers_at(case: &Case, summary: &RunSummary, rec: &Recording, t: f64) -> Result<Vec<Layer>, String> {
+    let (l0, h0) = (case.column_length, case.column_height);
+    let u_ref = (9.81 * h0).sqrt();
+    let tolerance = 0.3 * summary.t_ref;
+    let main = main_topic(case);
+    let mut layers = Vec::new();
+    if case.family() == "MPM" {
+        if let Some(f) = rec.frame_near(topics::MPM_LIQUID, t, tolerance)? {
+            let spacing = 0.35 * (l0 * h0 / f.points.len().max(1) as f64).sqrt();
+            let blue = RGBColor(120, 175, 235);
+            layers.push(Layer { points: f.points.iter().map(|p| (p[0] as f64, p[2] as f64, spacing, blue)).collect() });
+        }
+        if let Some(f) = rec.frame_near(main, t, tolerance)? {
+            let spacing = 0.45 * (l0 * h0 / f.points.len().max(1) as f64).sqrt();
+            let fluidised = f.array("fluidised").unwrap_or_default();
+            let points = f
+                .points
+                .iter()
+                .enumerate()
+                .map(|(i, p)| {
+                    let c = if fluidised.get(i).is_some_and(|v| *v > 0.5) { PALETTE[1] } else { RGBColor(120, 90, 50) };
+                    (p[0] as f64, p[2] as f64, spacing, c)
+                })
+                .collect();
+            layers.push(Layer { points });
+        }
+    } else {
+        if let Some(f) = rec.frame_near(topics::LBM_SURFACE, t, tolerance)? {
+            let blue = RGBColor(90, 160, 230);
+            layers.push(Layer { points: f.points.iter().map(|p| (p[0] as f64, p[2] as f64, 4e-4, blue)).collect() });
+        }
+        if let Some(f) = rec.frame_near(main, t, tolerance)? {
+            let (radius, speed) = (f.array("radius").unwrap_or_default(), f.array("speed").unwrap_or_default());
+            // Far grains first, so the near wall's are on top.
+            let mut order: Vec<usize> = (0..f.points.len()).collect();
+            order.sort_by(|&a, &b| f.points[b][1].total_cmp(&f.points[a][1]));
+            let points = order
+                .into_iter()
+                .map(|i| {
+                    let s = (speed.get(i).copied().unwrap_or(0.0) as f64 / u_ref).clamp(0.0, 1.0);
+                    let r = radius.get(i).copied().unwrap_or(1e-3) as f64;
+                    (f.points[i][0] as f64, f.points[i][2] as f64, r, ViridisRGB::get_color(s as f32))
+                })
+                .collect();
+            layers.push(Layer { points });
+        }
+    }
+    Ok(layers)
+}
+
+/// Draws `rows` of labelled panels (each a list of layers) on common axes
+/// (0..x_max, 0..z_max in m) under a one-line heading.
+fn draw_grid(
+    heading: &str,
+    rows: &[Vec<(String, Vec<Layer>)>],
     (x_max, z_max): (f64, f64),
     path: &Path,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    const WIDTH: u32 = 1100;
+    const PANEL_WIDTH: u32 = 1100;
     const HEADER: u32 = 34;
-    let plot_width = WIDTH as f64 - 70.0;
+    let columns = rows.iter().map(Vec::len).max().unwrap_or(1).max(1);
+    let panel_width = if columns == 1 { PANEL_WIDTH } else { (1800 / columns as u32).max(360) };
+    let plot_width = panel_width as f64 - 70.0;
     let panel_height = ((plot_width * z_max / x_max) as u32 + 44).clamp(110, 420);
-    let root = BitMapBackend::new(path, (WIDTH, HEADER + panel_height * panels.len() as u32)).into_drawing_area();
+    let size = (panel_width * columns as u32, HEADER + panel_height * rows.len() as u32);
+    let root = BitMapBackend::new(path, size).into_drawing_area();
     root.fill(&WHITE)?;
     let (header, body) = root.split_vertically(HEADER);
-    let legend = if case.family() == "MPM" {
-        "soil points brown, fluidised (n > n_max) orange; pore water blue"
-    } else {
-        "grains coloured by speed / √(g H0), viridis 0 → 1; water surface blue"
-    };
-    header.draw(&Text::new(
-        format!("{}: {} (a = {:.2}); {legend}", case.name, case.method.name(), case.aspect()),
-        (10, 8),
-        (FONT, 17).into_font(),
-    ))?;
-    for (area, (t_norm, layers)) in body.split_evenly((panels.len(), 1)).iter().zip(panels) {
-        let mut chart = ChartBuilder::on(area)
-            .margin_right(12)
-            .x_label_area_size(22)
-            .y_label_area_size(58)
-            .build_cartesian_2d(0.0..x_max, 0.0..z_max)?;
-        chart
-            .configure_mesh()
-            .disable_mesh()
-            .x_labels(8)
-            .y_labels(3)
-            .label_style((FONT, 12))
-            .x_label_formatter(&|x| format!("{x:.2}"))
-            .y_label_formatter(&|z| format!("{z:.2}"))
-            .draw()?;
-        let (xs, _) = chart.plotting_area().get_pixel_range();
-        let px_per_m = (xs.end - xs.start) as f64 / x_max;
-        for layer in layers {
-            let inside = layer.points.iter().filter(|p| p.0 >= 0.0 && p.0 <= x_max && p.1 >= 0.0 && p.1 <= z_max);
-            chart.draw_series(
-                inside.map(|&(x, z, r, c)| Circle::new((x, z), ((r * px_per_m).round() as i32).max(1), c.filled())),
-            )?;
+    header.draw(&Text::new(heading.to_string(), (10, 8), (FONT, 17).into_font()))?;
+    let areas = body.split_evenly((rows.len(), columns));
+    for (row, row_areas) in rows.iter().zip(areas.chunks(columns)) {
+        for ((label, layers), area) in row.iter().zip(row_areas) {
+            let mut chart = ChartBuilder::on(area)
+                .margin_right(12)
+                .x_label_area_size(22)
+                .y_label_area_size(58)
+                .build_cartesian_2d(0.0..x_max, 0.0..z_max)?;
+            chart
+                .configure_mesh()
+                .disable_mesh()
+                .x_labels(if columns == 1 { 8 } else { 4 })
+                .y_labels(3)
+                .label_style((FONT, 12))
+                .x_label_formatter(&|x| format!("{x:.2}"))
+                .y_label_formatter(&|z| format!("{z:.2}"))
+                .draw()?;
+            let (xs, _) = chart.plotting_area().get_pixel_range();
+            let px_per_m = (xs.end - xs.start) as f64 / x_max;
+            for layer in layers {
+                let inside = layer.points.iter().filter(|p| p.0 >= 0.0 && p.0 <= x_max && p.1 >= 0.0 && p.1 <= z_max);
+                chart.draw_series(
+                    inside.map(|&(x, z, r, c)| Circle::new((x, z), ((r * px_per_m).round() as i32).max(1), c.filled())),
+                )?;
+            }
+            area.draw(&Text::new(label.clone(), (70, 4), (FONT, 14).into_font()))?;
         }
-        area.draw(&Text::new(format!("t / t_ref = {t_norm:.1}"), (70, 4), (FONT, 14).into_font()))?;
     }
     root.present()?;
     Ok(())
