@@ -270,9 +270,10 @@ fn small_campaign(dir: &Path) -> PathBuf {
     file
 }
 
-/// Ctrl-C: the campaign stops its running cases (each keeps its recording
-/// and checkpoints), writes the report, exits 130, leaves no process;
-/// the same command then finishes the cases, continuing from checkpoints.
+/// A second campaign on the folder of a running one is refused. Ctrl-C:
+/// the campaign stops its running cases (each keeps its recording and
+/// checkpoints), writes the report, exits 130, leaves no process; the
+/// same command then finishes the cases, continuing from checkpoints.
 #[test]
 fn an_interrupted_campaign_stops_cleanly_and_continues() {
     let dir = scratch_dir("campaign_interrupted");
@@ -301,6 +302,11 @@ fn an_interrupted_campaign_stops_cleanly_and_continues() {
         assert!(child.try_wait().unwrap().is_none(), "campaign ended before its checkpoints");
         std::thread::sleep(Duration::from_millis(50));
     }
+    // A second campaign on the same folder is refused while the first runs.
+    let second = campaign(&[file.to_str().unwrap()], &out, &dir.join("cache"));
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert_eq!(second.status.code(), Some(1), "{err}");
+    assert!(err.contains(&format!("another campaign is running in {} (pid {})", out.display(), child.id())), "{err}");
     // SAFETY: signalling our own child.
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
     let o = child.wait_with_output().unwrap();

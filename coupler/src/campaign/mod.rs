@@ -438,6 +438,37 @@ struct Marker {
     quick: bool,
 }
 
+/// Takes `OUT/campaign.lock` for this process (an advisory `flock`,
+/// released by the kernel however the process ends), so that two
+/// campaigns never run the same cases at once. The file holds the
+/// holder's pid, for the message.
+fn lock_output(out: &Path) -> Result<std::fs::File, String> {
+    use std::io::{Read, Seek, Write};
+    use std::os::fd::AsRawFd;
+    std::fs::create_dir_all(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
+    let path = out.join("campaign.lock");
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| format!("cannot open {}: {e}", path.display()))?;
+    // SAFETY: flock on a descriptor this function owns; no memory is passed.
+    if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+        let mut holder = String::new();
+        let _ = file.read_to_string(&mut holder);
+        return Err(format!(
+            "another campaign is running in {} (pid {}): wait for it to end, stop it (Ctrl-C), or give another --out",
+            out.display(),
+            holder.trim()
+        ));
+    }
+    let written = file.set_len(0).and_then(|_| file.rewind()).and_then(|_| write!(file, "{}", std::process::id()));
+    written.map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    Ok(file)
+}
+
 fn claim_output(campaign: &Campaign) -> Result<(), String> {
     let path = campaign.out.join("campaign.json");
     let marker = Marker { name: campaign.name.clone(), quick: campaign.quick };
@@ -540,6 +571,13 @@ pub fn run(args: Args, command_line: String) -> ExitCode {
         Err(e) => {
             eprintln!("coupler: {e}");
             return ExitCode::from(EXIT_BAD_SCENE as u8);
+        }
+    };
+    let _lock = match lock_output(&campaign.out) {
+        Ok(lock) => lock,
+        Err(e) => {
+            eprintln!("coupler: {e}");
+            return ExitCode::FAILURE;
         }
     };
     if let Err(e) = claim_output(&campaign) {

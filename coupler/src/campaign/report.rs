@@ -127,11 +127,15 @@ fn condition_word(c: Condition) -> &'static str {
     }
 }
 
-/// Runs of one series, condition and column height (several: seeds).
-type GroupKey = (Condition, String, u64);
+/// A column's H0 and L0 in µm: runs of one column are repeats (seeds).
+type Column = (u64, u64);
+
+/// Runs of one series, condition and column (several: seeds).
+type GroupKey = (Condition, String, Column);
 
 fn key(row: &Row) -> GroupKey {
-    (row.case.condition, row.case.series.clone(), (row.case.column_height * 1e6).round() as u64)
+    let um = |m: f64| (m * 1e6).round() as u64;
+    (row.case.condition, row.case.series.clone(), (um(row.case.column_height), um(row.case.column_length)))
 }
 
 /// Each series' colour, in the order the campaign file names them.
@@ -318,13 +322,18 @@ fn fronts_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), Strin
          and the liquid front (dashed).\n\n",
     );
     // Cases: one condition and column height, every method and seed.
-    let mut cases: BTreeMap<(Condition, u64), Vec<&Row>> = BTreeMap::new();
+    let mut cases: BTreeMap<(Condition, Column), Vec<&Row>> = BTreeMap::new();
     for r in rows {
-        let (c, _, h) = key(r);
-        cases.entry((c, h)).or_default().push(r);
+        let (c, _, column) = key(r);
+        cases.entry((c, column)).or_default().push(r);
     }
     let colors = series_colors(rows);
-    for ((condition, h_um), runs) in &cases {
+    // Columns of one H0 with different L0 get the aspect ratio in their file name.
+    let mut heights: BTreeMap<(Condition, u64), usize> = BTreeMap::new();
+    for (condition, (h_um, _)) in cases.keys() {
+        *heights.entry((*condition, *h_um)).or_default() += 1;
+    }
+    for ((condition, (h_um, _)), runs) in &cases {
         let h0 = *h_um as f64 * 1e-6;
         let a = runs[0].case.aspect();
         let mut series = Vec::new();
@@ -344,7 +353,10 @@ fn fronts_section(md: &mut String, rows: &[Row], dir: &Path) -> Result<(), Strin
                 ));
             }
         }
-        let stem = format!("front_{}_h{:03}", condition_word(*condition), (h0 * 1000.0).round() as u64);
+        let mut stem = format!("front_{}_h{:03}", condition_word(*condition), (h0 * 1000.0).round() as u64);
+        if heights[&(*condition, *h_um)] > 1 {
+            stem.push_str(&format!("_a{:.0}", a * 100.0));
+        }
         Chart {
             title: format!("{}, H0 = {:.2} m, a = {a:.2}", capitalised(condition_word(*condition)), h0),
             x_label: "t / t_ref".into(),
@@ -841,7 +853,7 @@ fn methods_table(md: &mut String, rows: &[Row]) {
          |---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     let groups = groups(rows);
-    let heights: std::collections::BTreeSet<(Condition, u64)> = groups.keys().map(|(c, _, h)| (*c, *h)).collect();
+    let heights: std::collections::BTreeSet<(Condition, Column)> = groups.keys().map(|(c, _, h)| (*c, *h)).collect();
     for (condition, h) in heights {
         let (Some(dem), Some(mpm)) =
             (groups.get(&(condition, "DEM".to_string(), h)), groups.get(&(condition, "MPM".to_string(), h)))
@@ -913,5 +925,38 @@ mod tests {
         let (mean, lo, hi, n) = spread([1.0, f64::NAN, 3.0].into_iter()).unwrap();
         assert_eq!((mean, lo, hi, n), (2.0, 1.0, 3.0, 2));
         assert!(spread([f64::NAN].into_iter()).is_none());
+    }
+
+    fn case(name: &str, h0: f64, l0: f64) -> Case {
+        Case {
+            name: name.into(),
+            scene_path: PathBuf::new(),
+            set: Vec::new(),
+            method: schemas::Method::DemLbm,
+            condition: Condition::Saturated,
+            column_length: l0,
+            column_height: h0,
+            grain_diameter: 2.5e-3,
+            estimate_s: 0.0,
+            dir: PathBuf::new(),
+            origin_x: 0.0,
+            series: "DEM".into(),
+            study: None,
+            expect: None,
+            max_wall: None,
+        }
+    }
+
+    /// Runs of one column (H0 and L0) and series are repeats; the same H0
+    /// on another L0 is another case, not a seed.
+    #[test]
+    fn repeats_share_the_column_not_only_its_height() {
+        let summary: RunSummary = serde_json::from_str(include_str!("testdata/summary_dem_lbm.json")).unwrap();
+        let cases = [case("a", 0.06, 0.04), case("a_seed2", 0.06, 0.04), case("wide", 0.06, 0.08)];
+        let rows: Vec<Row> = cases.iter().map(|c| Row { case: c, summary: &summary }).collect();
+        let g = groups(&rows);
+        assert_eq!(g.len(), 2, "{:?}", g.keys().collect::<Vec<_>>());
+        let sizes: Vec<usize> = g.values().map(Vec::len).collect();
+        assert_eq!(sizes, [2, 1]);
     }
 }
