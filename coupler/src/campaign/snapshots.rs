@@ -158,7 +158,7 @@ fn legend(case: &Case) -> &'static str {
     if case.family() == "MPM" {
         "soil points brown, fluidised (n > n_max) orange; pore water blue"
     } else {
-        "grains coloured by speed / √(g H0), viridis 0 → 1; water surface blue"
+        "grains coloured by speed / √(g H0), viridis 0 → 1; water surface blue (middle 80 % of the width)"
     }
 }
 
@@ -203,8 +203,14 @@ fn layers_at(case: &Case, summary: &RunSummary, rec: &Recording, t: f64) -> Resu
         }
     } else {
         if let Some(f) = rec.frame_near(topics::LBM_SURFACE, t, tolerance)? {
+            // The side walls hold films of liquid a cell or two thick that
+            // drain slowly (docs/lbm.md "Wall films"); seen through the
+            // width they would seem to hang over the pile.
+            let (lo, hi) = f.points.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| (lo.min(p[1]), hi.max(p[1])));
+            let margin = 0.1 * (hi - lo);
             let blue = RGBColor(90, 160, 230);
-            layers.push(Layer { points: f.points.iter().map(|p| (p[0] as f64, p[2] as f64, 4e-4, blue)).collect() });
+            let middle = f.points.iter().filter(|p| p[1] >= lo + margin && p[1] <= hi - margin);
+            layers.push(Layer { points: middle.map(|p| (p[0] as f64, p[2] as f64, 4e-4, blue)).collect() });
         }
         if let Some(f) = rec.frame_near(main, t, tolerance)? {
             let (radius, speed) = (f.array("radius").unwrap_or_default(), f.array("speed").unwrap_or_default());
