@@ -250,6 +250,13 @@ fn a_campaign_continues_where_it_stopped() {
     let after = summary(&copy.join("cases/mpm_dry_h030"));
     assert_eq!(after.runout, before.runout, "same scene, same result");
     assert_eq!(after.front.len(), before.front.len());
+    let report = std::fs::read_to_string(copy.join("report.md")).unwrap();
+    assert!(report.contains("20 of 20 cases finished. This invocation ran 1 case(s) in "), "{report}");
+    // Again with everything finished: the report is rewritten, nothing run.
+    let o = campaign(&["scenes/ceccato2020", "--quick"], &copy, &again.join("cache"));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report = std::fs::read_to_string(copy.join("report.md")).unwrap();
+    assert!(report.contains("This invocation ran no case (it wrote the report from the finished runs)"), "{report}");
     // A full campaign is not continued in a quick one's folder.
     let o = campaign(&["scenes/ceccato2020"], &copy, &again.join("cache"));
     let err = String::from_utf8_lossy(&o.stderr);

@@ -97,14 +97,17 @@ struct CaseSpec {
     /// repeats (seeds) of one case.
     #[serde(default)]
     series: Option<String>,
-    /// A speed-against-error set this case is part of (`study`), and its
-    /// place in it (`level`: grows as the run gets finer, e.g. elements
-    /// per L0 or points per element); the finest level is the set's
-    /// reference.
+    /// The speed-against-error sets this case is part of (`study`), and
+    /// its place in each (`level`: grows as the run gets finer, e.g.
+    /// elements per L0 or points per element); the finest level is a
+    /// set's reference. One name and one number, or two lists of the same
+    /// length when one run belongs to several sets (the paper's lattice
+    /// is both the lattice set's middle level and the sub-step set's
+    /// finest), so that it is run once.
     #[serde(default)]
-    study: Option<String>,
+    study: Option<OneOrMany<String>>,
     #[serde(default)]
-    level: Option<f64>,
+    level: Option<OneOrMany<f64>>,
     /// The outcome the case must have (hard cases); without it the case
     /// must complete or come to rest.
     #[serde(default)]
@@ -113,6 +116,23 @@ struct CaseSpec {
     /// counted as a hang.
     #[serde(default)]
     max_wall: Option<f64>,
+}
+
+/// A value or a list of them.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(untagged)]
+enum OneOrMany<T> {
+    One(T),
+    Many(Vec<T>),
+}
+
+impl<T> OneOrMany<T> {
+    fn into_vec(self) -> Vec<T> {
+        match self {
+            OneOrMany::One(v) => vec![v],
+            OneOrMany::Many(v) => v,
+        }
+    }
 }
 
 /// What a case must end as.
@@ -208,8 +228,8 @@ pub struct Case {
     pub origin_x: f64,
     /// The report's series (default: [`Case::family`]).
     pub series: String,
-    /// The speed-against-error set and level of the case, if any.
-    pub study: Option<(String, f64)>,
+    /// The speed-against-error sets of the case and its level in each.
+    pub studies: Vec<(String, f64)>,
     pub expect: Option<Expect>,
     pub max_wall: Option<f64>,
 }
@@ -308,20 +328,10 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
     let out = args.out.clone().unwrap_or_else(|| {
         PathBuf::from("runs").join(format!("campaign-{}{}", spec.campaign.name, if args.quick { "-quick" } else { "" }))
     });
-    let listed = spec.campaign.scenes.iter().map(|s| (None, s.clone(), Vec::new(), None, None, None, None));
+    let listed = spec.campaign.scenes.iter().map(|s| (None, s.clone(), Vec::new(), None, Vec::new(), None, None));
     let mut extra = Vec::new();
     for c in &spec.case {
-        let study = match (&c.study, c.level) {
-            (Some(study), Some(level)) if level.is_finite() => Some((study.clone(), level)),
-            (None, None) => None,
-            _ => {
-                return Err(format!(
-                "{}: case {:?}: study and level go together (level a finite number that grows as the run gets finer)",
-                file.display(),
-                c.name
-            ))
-            }
-        };
+        let study = case_studies(c).map_err(|e| format!("{}: case {:?}: {e}", file.display(), c.name))?;
         if c.max_wall.is_some_and(|w| !(w > 0.0 && w.is_finite())) {
             return Err(format!("{}: case {:?}: max_wall must be > 0 s", file.display(), c.name));
         }
@@ -362,7 +372,7 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
         cases.push(Case {
             origin_x: scene.spec.domain.min[0],
             series: series.unwrap_or_else(|| family_of(scene.method()).to_string()),
-            study,
+            studies: study,
             expect,
             max_wall,
             dir: out.join("cases").join(&name),
@@ -413,6 +423,10 @@ fn check_comparisons(comparisons: &[Comparison], cases: &[Case]) -> Result<(), S
         if let Some((what, n)) = sizes.iter().find(|(_, n)| *n == 0 || *n > COMPARISON_MAX_PANELS) {
             return Err(format!("compare {:?}: {n} {what}; give 1 to {COMPARISON_MAX_PANELS}", c.name));
         }
+        let mut rows = BTreeSet::new();
+        if let Some(twice) = c.cases.iter().find(|n| !rows.insert(n.as_str())) {
+            return Err(format!("compare {:?}: case {twice:?} is listed twice: give each row once", c.name));
+        }
         if let Some(unknown) = c.cases.iter().find(|n| !cases.iter().any(|k| &k.name == *n)) {
             return Err(format!("compare {:?}: no case is named {unknown:?}", c.name));
         }
@@ -421,6 +435,32 @@ fn check_comparisons(comparisons: &[Comparison], cases: &[Case]) -> Result<(), S
         }
     }
     Ok(())
+}
+
+/// A case's `study` and `level` as (set, level) pairs: both absent, or
+/// both given with as many levels as sets, each level a finite number and
+/// no set named twice.
+fn case_studies(c: &CaseSpec) -> Result<Vec<(String, f64)>, String> {
+    let (studies, levels) = match (c.study.clone(), c.level.clone()) {
+        (None, None) => return Ok(Vec::new()),
+        (Some(s), Some(l)) => (s.into_vec(), l.into_vec()),
+        _ => return Err("study and level go together (level a finite number that grows as the run gets finer)".into()),
+    };
+    if studies.len() != levels.len() || studies.is_empty() {
+        return Err(format!(
+            "{} stud(ies) but {} level(s): give one level per study, in the same order",
+            studies.len(),
+            levels.len()
+        ));
+    }
+    if let Some(l) = levels.iter().find(|l| !l.is_finite()) {
+        return Err(format!("level {l} is not a finite number (it grows as the run gets finer)"));
+    }
+    let mut seen = BTreeSet::new();
+    if let Some(s) = studies.iter().find(|s| !seen.insert(s.as_str())) {
+        return Err(format!("study {s:?} is listed twice: a case has one level in a study"));
+    }
+    Ok(studies.into_iter().zip(levels).collect())
 }
 
 /// A case name is a file name: `[A-Za-z0-9_.-]+`, not starting with a dot.
@@ -542,7 +582,7 @@ pub fn check(args: &Args) -> ExitCode {
     );
     let mut total = 0.0;
     for c in &campaign.cases {
-        let study = c.study.as_ref().map(|(s, l)| format!(", study {s:?} level {l}")).unwrap_or_default();
+        let study: String = c.studies.iter().map(|(s, l)| format!(", study {s:?} level {l}")).collect();
         let expect = c.expect.as_ref().map(|e| format!(", must {}", e.outcome.word())).unwrap_or_default();
         let done = c.finished_summary().map(|s| format!(", finished ({})", s.status)).unwrap_or_default();
         println!(
@@ -605,7 +645,13 @@ pub fn run(args: Args, command_line: String) -> ExitCode {
     let outcome = execute(&campaign, schedule, &stops);
     let wall = started.elapsed().as_secs_f64();
     let finished: Vec<Option<RunSummary>> = campaign.cases.iter().map(Case::finished_summary).collect();
-    let context = report::Context { command_line, schedule, wall_seconds: wall, interrupted: outcome.interrupted };
+    let context = report::Context {
+        command_line,
+        schedule,
+        wall_seconds: wall,
+        interrupted: outcome.interrupted,
+        cases_started: outcome.started,
+    };
     match report::write(&campaign, &finished, &context) {
         Ok(path) => eprintln!("coupler: report {}", path.display()),
         Err(e) => {
@@ -647,6 +693,8 @@ pub fn run(args: Args, command_line: String) -> ExitCode {
 
 struct Outcome {
     interrupted: bool,
+    /// Cases this invocation started (fresh or resumed).
+    started: usize,
 }
 
 /// Runs every case not yet finished, `schedule.jobs` at a time, longest
@@ -679,7 +727,7 @@ fn execute(campaign: &Campaign, schedule: Schedule, stops: &AtomicUsize) -> Outc
     loop {
         if stopping() {
             interrupt(&mut running, campaign, stops);
-            return Outcome { interrupted: true };
+            return Outcome { interrupted: true, started };
         }
         while running.len() < schedule.jobs && !stopping() {
             let Some(index) = queue.pop_front() else { break };
@@ -712,7 +760,7 @@ fn execute(campaign: &Campaign, schedule: Schedule, stops: &AtomicUsize) -> Outc
             }
         }
         if running.is_empty() {
-            return Outcome { interrupted: stopping() };
+            return Outcome { interrupted: stopping(), started };
         }
         std::thread::sleep(Duration::from_millis(100));
         for r in running.iter_mut() {
@@ -1091,5 +1139,38 @@ mod tests {
         assert_eq!(q.for_method(Method::DemLbm), ["a", "d", "l"]);
         assert_eq!(q.for_method(Method::LbmFluid), ["a", "l"]);
         assert_eq!(q.for_method(Method::Mpm), ["a", "m"]);
+    }
+
+    /// One run in several speed-against-error sets: a list of sets and a
+    /// level in each, the same length; a single name and number as before.
+    #[test]
+    fn a_case_joins_several_studies_with_a_level_in_each() {
+        let spec = |extra: &str| -> CaseSpec { toml::from_str(&format!("name = \"c\"\nscene = \"s.toml\"\n{extra}")).unwrap() };
+        assert_eq!(case_studies(&spec("")).unwrap(), []);
+        assert_eq!(case_studies(&spec("study = \"lattice\"\nlevel = 4.5")).unwrap(), [("lattice".to_string(), 4.5)]);
+        let both = case_studies(&spec("study = [\"lattice\", \"sub-steps\"]\nlevel = [4.17, 57]")).unwrap();
+        assert_eq!(both, [("lattice".to_string(), 4.17), ("sub-steps".to_string(), 57.0)]);
+        let err = case_studies(&spec("study = [\"lattice\", \"sub-steps\"]\nlevel = [4.17]")).unwrap_err();
+        assert!(err.contains("2 stud(ies) but 1 level(s)"), "{err}");
+        let err = case_studies(&spec("study = [\"a\", \"a\"]\nlevel = [1, 2]")).unwrap_err();
+        assert!(err.contains("\"a\" is listed twice"), "{err}");
+        let err = case_studies(&spec("study = \"a\"")).unwrap_err();
+        assert!(err.contains("study and level go together"), "{err}");
+    }
+
+    /// A compare names each case once: a second row of the same case would
+    /// draw nothing new.
+    #[test]
+    fn a_comparison_lists_each_case_once() {
+        let compare = |cases: &[&str]| Comparison {
+            name: "c".into(),
+            title: String::new(),
+            cases: cases.iter().map(|c| c.to_string()).collect(),
+            times: vec![1.0],
+        };
+        let err = check_comparisons(&[compare(&["x", "x"])], &[]).unwrap_err();
+        assert!(err.contains("case \"x\" is listed twice"), "{err}");
+        let err = check_comparisons(&[compare(&["x"])], &[]).unwrap_err();
+        assert!(err.contains("no case is named \"x\""), "{err}");
     }
 }

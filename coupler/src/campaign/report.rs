@@ -23,6 +23,8 @@ pub struct Context {
     /// Wall time of this invocation, s.
     pub wall_seconds: f64,
     pub interrupted: bool,
+    /// Cases this invocation started; none when it only rewrote the report.
+    pub cases_started: usize,
 }
 
 /// Normalised times at which the report reads the fronts.
@@ -236,7 +238,7 @@ fn header(md: &mut String, campaign: &Campaign, rows: &[Row], ctx: &Context) {
     let _ = writeln!(
         md,
         "Made by `{}` from `{}` on {}, {} case(s) at a time with {} thread(s) each. \
-         {} of {} cases finished{}. This invocation took {:.0} s; the finished runs' own wall times sum to {:.0} s.\n",
+         {} of {} cases finished{}. {}; the finished runs' own wall times sum to {:.0} s.\n",
         ctx.command_line,
         campaign.file.display(),
         machine(),
@@ -245,7 +247,11 @@ fn header(md: &mut String, campaign: &Campaign, rows: &[Row], ctx: &Context) {
         rows.len(),
         campaign.cases.len(),
         if ctx.interrupted { " (the campaign was interrupted: run the same command again to continue)" } else { "" },
-        ctx.wall_seconds,
+        if ctx.cases_started == 0 {
+            "This invocation ran no case (it wrote the report from the finished runs)".to_string()
+        } else {
+            format!("This invocation ran {} case(s) in {:.0} s", ctx.cases_started, ctx.wall_seconds)
+        },
         cases_wall
     );
     md.push_str(
@@ -607,7 +613,7 @@ pub fn observed_order(coarse: (f64, f64), fine: (f64, f64)) -> f64 {
 fn speed_against_error(md: &mut String, rows: &[Row], cases: &[Case], dir: &Path) -> Result<(), String> {
     let mut studies: BTreeMap<&str, Vec<(f64, &Row)>> = BTreeMap::new();
     for r in rows {
-        if let Some((study, level)) = &r.case.study {
+        for (study, level) in &r.case.studies {
             studies.entry(study).or_default().push((*level, r));
         }
     }
@@ -631,7 +637,7 @@ fn speed_against_error(md: &mut String, rows: &[Row], cases: &[Case], dir: &Path
         // The reference is the finest level of the campaign file, finished or not.
         let finest = cases
             .iter()
-            .filter_map(|c| c.study.as_ref().filter(|(s, _)| s == study).map(|(_, l)| (*l, &c.name)))
+            .flat_map(|c| c.studies.iter().filter(|(s, _)| s == study).map(move |(_, l)| (*l, &c.name)))
             .max_by(|a, b| a.0.total_cmp(&b.0));
         if let Some((level, name)) = finest.filter(|(level, _)| *level > finest_level) {
             let _ = writeln!(
@@ -941,7 +947,7 @@ mod tests {
             dir: PathBuf::new(),
             origin_x: 0.0,
             series: "DEM".into(),
-            study: None,
+            studies: Vec::new(),
             expect: None,
             max_wall: None,
         }
