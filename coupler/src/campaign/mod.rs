@@ -1145,7 +1145,9 @@ mod tests {
     /// level in each, the same length; a single name and number as before.
     #[test]
     fn a_case_joins_several_studies_with_a_level_in_each() {
-        let spec = |extra: &str| -> CaseSpec { toml::from_str(&format!("name = \"c\"\nscene = \"s.toml\"\n{extra}")).unwrap() };
+        let spec = |extra: &str| -> CaseSpec {
+            toml::from_str(&format!("name = \"c\"\nscene = \"s.toml\"\n{extra}")).unwrap()
+        };
         assert_eq!(case_studies(&spec("")).unwrap(), []);
         assert_eq!(case_studies(&spec("study = \"lattice\"\nlevel = 4.5")).unwrap(), [("lattice".to_string(), 4.5)]);
         let both = case_studies(&spec("study = [\"lattice\", \"sub-steps\"]\nlevel = [4.17, 57]")).unwrap();
