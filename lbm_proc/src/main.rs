@@ -8,10 +8,12 @@ use clap::{Parser, Subcommand};
 
 use lbm_proc::bench::{bulk_mlups, bytes_per_update, triad_bandwidth};
 use lbm_proc::fluid::{Collision, FluidParams};
+use lbm_proc::real::Real;
 use lbm_proc::run::{initial_fluid, run};
 use lbm_proc::setup::LbmSetup;
 use runtime::process::{exit_after_run, start_run, Reporter, RunArgs, RunOptions};
 use runtime::{say, tell};
+use schemas::scene::Precision;
 use schemas::Scene;
 
 #[derive(Parser)]
@@ -99,10 +101,18 @@ fn bench(bulk: &[usize], scene: Option<&PathBuf>, set: &[String], steps: u64) ->
     Ok(())
 }
 
-/// Million updates of liquid (fluid + interface) cells per second over `steps` steps of a scene.
+/// Million updates of liquid (fluid + interface) cells per second over
+/// `steps` steps of a scene, its populations stored as `lbm.precision` says.
 fn scene_mlups(scene: &Scene, steps: u64) -> Result<f64, String> {
+    match scene.lbm().precision {
+        Precision::F32 => scene_mlups_stored_as::<f32>(scene, steps),
+        Precision::F64 => scene_mlups_stored_as::<f64>(scene, steps),
+    }
+}
+
+fn scene_mlups_stored_as<T: Real>(scene: &Scene, steps: u64) -> Result<f64, String> {
     let setup = LbmSetup::from_scene(scene).map_err(|e| e.to_string())?;
-    let mut fluid = initial_fluid(scene, &setup).map_err(|e| e.to_string())?;
+    let mut fluid = initial_fluid::<T>(scene, &setup).map_err(|e| e.to_string())?;
     for gate in &setup.gates {
         fluid.remove_walls(&gate.cells).map_err(|e| e.to_string())?;
     }

@@ -14,8 +14,11 @@ use crate::Units;
 /// only used to estimate a duration.
 pub const MEASURED_LBM_RATE: f64 = 4.0e7;
 
-/// Two f32 lattices, flags, f64 mass and fill per cell.
-const BYTES_PER_CELL: f64 = 19.0 * 4.0 * 2.0 + 1.0 + 16.0;
+/// Two lattices of 19 populations of `population_bytes` each, flags, f64
+/// mass and fill per cell.
+fn bytes_per_cell(population_bytes: usize) -> f64 {
+    19.0 * population_bytes as f64 * 2.0 + 1.0 + 16.0
+}
 
 /// The LBM's plan for `scene` (which has fluid blocks and an `[lbm]` table).
 pub fn plan(scene: &Scene) -> Plan {
@@ -40,13 +43,15 @@ pub fn plan(scene: &Scene) -> Plan {
     p.time_step = dt;
     p.steps = (s.output.end_time / dt).ceil() as u64;
     p.work = p.steps as f64 * liquid;
-    p.memory = ncells * BYTES_PER_CELL;
-    p.wall_estimate = p.work / MEASURED_LBM_RATE;
+    let population_bytes = lbm.precision.bytes();
+    p.memory = ncells * bytes_per_cell(population_bytes);
+    // The kernel is bound by memory traffic, which the population size sets.
+    p.wall_estimate = p.work / MEASURED_LBM_RATE * (population_bytes as f64 / 4.0);
     p.line(
         "lattice",
         format!(
-            "{} x {} x {} = {:.3e} cells of {:.3e} m, time step {:.3e} s; liquid {:.3e} cells at the start",
-            dims[0], dims[1], dims[2], ncells, dx, dt, liquid
+            "{} x {} x {} = {:.3e} cells of {:.3e} m, time step {:.3e} s; liquid {:.3e} cells at the start; populations in {}",
+            dims[0], dims[1], dims[2], ncells, dx, dt, liquid, lbm.precision.name()
         ),
     );
     p.line(

@@ -18,7 +18,7 @@ use runtime::metrics::{CouplingTimings, LbmMetrics};
 use runtime::process::{Progress, RunOptions};
 use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError};
 use schemas::measures::{front_position, FrontSample};
-use schemas::scene::Scene;
+use schemas::scene::{Precision, Scene};
 use schemas::summary::{ExchangeDetails, ExchangeSummary, LbmDetails, RunSummary, Throughput};
 use schemas::topics;
 
@@ -26,6 +26,7 @@ use crate::coupling::{Coupling, CouplingError, HeldLiquid};
 use crate::fluid::{flags, Fluid, FluidState, ForcingMemory, Sample};
 use crate::grains::GrainForcing;
 use crate::lattice::CS2;
+use crate::real::Real;
 use crate::setup::{LbmSetup, SetupError};
 use crate::watchdog::Instability;
 
@@ -34,38 +35,73 @@ pub const STATE_VERSION: u32 = 1;
 
 /// Full state, enough to continue a fluid-only run bit for bit
 /// (`/lbm/state`); a coupled run's checkpoint adds the forcing memory.
+/// `T` is the populations' storage (`lbm.precision`).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-pub struct LbmState {
+pub struct LbmState<T = f32> {
     pub version: u32,
     /// Simulated time since the start of the run, s.
     pub time: f64,
     /// Which gates (in scene order) have been removed.
     pub gates_removed: Vec<bool>,
-    pub fluid: FluidState<f32>,
+    pub fluid: FluidState<T>,
 }
 
-impl LbmState {
+/// The type `/lbm/state` names in its channel's `encoding` metadata for
+/// populations stored as `T`: the f32 name is the one recordings have
+/// always had.
+pub fn state_schema_name<T: Real>() -> String {
+    match std::any::type_name::<T>() {
+        "f32" => "lbm_proc::run::LbmState".to_string(),
+        other => format!("lbm_proc::run::LbmState<{other}>"),
+    }
+}
+
+impl<T: Real> LbmState<T> {
     pub fn encode(&self) -> Vec<u8> {
         bincode::serde::encode_to_vec(self, bincode::config::standard()).expect("state encodes")
     }
 
-    pub fn decode(bytes: &[u8]) -> Result<Self, String> {
+    /// Decodes a state whose populations are stored as `T`.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, String> {
         bincode::serde::decode_from_slice(bytes, bincode::config::standard()).map(|(s, _)| s).map_err(|e| e.to_string())
     }
 
     /// The last `/lbm/state` of a recording and its log time (ns), reading
-    /// up to the first damaged record (a recording whose writer died).
-    pub fn last_in_recording(mcap_bytes: &[u8]) -> Result<(u64, LbmState), String> {
+    /// up to the first damaged record (a recording whose writer died). A
+    /// recording whose lattice is stored in another precision is refused
+    /// by its schema name.
+    pub fn last_of_recording(mcap_bytes: &[u8]) -> Result<(u64, Self), String> {
         let stream = mcap::MessageStream::new_with_options(mcap_bytes, mcap::read::Options::IgnoreEndMagic.into())
             .map_err(|e| format!("not an MCAP recording: {e}"))?;
         let mut last = None;
         for m in stream {
             let Ok(m) = m else { break };
             if m.channel.topic == schemas::topics::LBM_STATE {
-                last = Some((m.log_time, LbmState::decode(&m.data)?));
+                // The channel's `encoding` metadata names the type (`Recording::state_channel`).
+                let encoding = m.channel.metadata.get("encoding").map(String::as_str).unwrap_or_default();
+                let wanted = state_schema_name::<T>();
+                if !encoding.contains(&format!(" of {wanted} version ")) {
+                    return Err(format!(
+                        "the recording's /lbm/state is {encoding:?}, not {wanted:?}: its lattice was stored in \
+                         another lbm.precision; read it as that"
+                    ));
+                }
+                last = Some((m.log_time, Self::from_bytes(&m.data)?));
             }
         }
         last.ok_or_else(|| "the recording holds no /lbm/state".to_string())
+    }
+}
+
+impl LbmState<f32> {
+    /// [`LbmState::from_bytes`] for the default f32 lattice.
+    pub fn decode(bytes: &[u8]) -> Result<Self, String> {
+        Self::from_bytes(bytes)
+    }
+
+    /// [`LbmState::last_of_recording`] for the default f32 lattice.
+    pub fn last_in_recording(mcap_bytes: &[u8]) -> Result<(u64, Self), String> {
+        Self::last_of_recording(mcap_bytes)
     }
 }
 
@@ -113,9 +149,9 @@ struct Gathered {
 }
 
 /// The run's lattice, ready to step: walls, gates, the initial liquid at hydrostatic density.
-pub fn initial_fluid(scene: &Scene, setup: &LbmSetup) -> Result<Fluid<f32>, RunError> {
+pub fn initial_fluid<T: Real>(scene: &Scene, setup: &LbmSetup) -> Result<Fluid<T>, RunError> {
     let mut fluid =
-        Fluid::<f32>::new(setup.dims, setup.faces, setup.params).map_err(|e| RunError::Lattice(e.to_string()))?;
+        Fluid::<T>::new(setup.dims, setup.faces, setup.params).map_err(|e| RunError::Lattice(e.to_string()))?;
     for gate in &setup.gates {
         for &c in &gate.cells {
             fluid.set_flag(c, flags::WALL).map_err(|e| RunError::Lattice(e.to_string()))?;
@@ -128,9 +164,9 @@ pub fn initial_fluid(scene: &Scene, setup: &LbmSetup) -> Result<Fluid<f32>, RunE
 /// A run's lattice, its initial liquid mass and active cells: the scene's
 /// initial liquid, or the checkpoint's lattice (moved out of it: a copy
 /// would double the memory) with the rest of the checkpoint.
-type Lattice = (Fluid<f32>, f64, usize, Option<(CheckpointFile, LbmCheckpoint)>);
+type Lattice<T> = (Fluid<T>, f64, usize, Option<(CheckpointFile, LbmCheckpoint<LbmState<T>>)>);
 
-fn lattice(scene: &Scene, setup: &LbmSetup, resume: Option<&Path>) -> Result<Lattice, RunError> {
+fn lattice<T: Real>(scene: &Scene, setup: &LbmSetup, resume: Option<&Path>) -> Result<Lattice<T>, RunError> {
     match resume {
         Some(path) => {
             let (file, mut c) = read_checkpoint(path, scene)?;
@@ -164,7 +200,22 @@ fn grain_forcing(scene: &Scene, setup: &LbmSetup) -> Result<GrainForcing, RunErr
 /// With a `peer` (a coupled scene), every step is one exchange: the grain
 /// states of step n come from the peer, are forced in ([`GrainForcing`]),
 /// and the loads go back; the run ends when the peer sends the stop flag.
+///
+/// The lattice stores its populations as `lbm.precision` says.
 pub fn run(
+    scene: &Scene,
+    opts: &RunOptions,
+    stop: &AtomicBool,
+    progress: &mut dyn Progress,
+    peer: Option<&mut dyn StatePeer>,
+) -> Result<RunSummary, RunError> {
+    match scene.lbm().precision {
+        Precision::F32 => run_stored_as::<f32>(scene, opts, stop, progress, peer),
+        Precision::F64 => run_stored_as::<f64>(scene, opts, stop, progress, peer),
+    }
+}
+
+fn run_stored_as<T: Real>(
     scene: &Scene,
     opts: &RunOptions,
     stop: &AtomicBool,
@@ -176,7 +227,7 @@ pub fn run(
     for note in &setup.notes {
         progress.log(note);
     }
-    let (fluid, mass_initial, active_initial, resumed) = lattice(scene, &setup, opts.resume.as_deref())?;
+    let (fluid, mass_initial, active_initial, resumed) = lattice::<T>(scene, &setup, opts.resume.as_deref())?;
 
     std::fs::create_dir_all(&opts.out_dir).map_err(|source| RunError::Io { path: opts.out_dir.clone(), source })?;
     let (mcap_path, summary_path) = output_paths(&opts.out_dir);
@@ -186,7 +237,7 @@ pub fn run(
             surface: b.channel::<PointCloud>(topics::LBM_SURFACE)?,
             slice: b.channel::<Grid>(topics::LBM_SLICE)?,
             metrics: b.channel::<LbmMetrics>(topics::LBM_METRICS)?,
-            state: b.state_channel(topics::LBM_STATE, "lbm_proc::run::LbmState", STATE_VERSION)?,
+            state: b.state_channel(topics::LBM_STATE, &state_schema_name::<T>(), STATE_VERSION)?,
             coupling: if coupled { Some(b.channel::<CouplingTimings>(topics::LBM_COUPLING)?) } else { None },
             received: if coupled && out.record_exchange {
                 Some(b.received_channel(topics::LBM_RECEIVED_STATES)?)
@@ -287,7 +338,7 @@ pub fn run(
     let end_time = out.end_time;
     drive(
         &mut solver,
-        exchange.as_mut().map(|x| x as &mut dyn StepExchange<LbmRun>),
+        exchange.as_mut().map(|x| x as &mut dyn StepExchange<LbmRun<T>>),
         &mut rec,
         cadence,
         RestRule::of(out),
@@ -323,15 +374,15 @@ struct LbmCheckpoint<S = LbmState, G = Gathered> {
 
 /// [`LbmState`] borrowing the lattice.
 #[derive(Serialize)]
-struct LbmStateRef<'a> {
+struct LbmStateRef<'a, T> {
     version: u32,
     time: f64,
     gates_removed: &'a [bool],
-    fluid: &'a FluidState<f32>,
+    fluid: &'a FluidState<T>,
 }
 
 /// A lattice of no cells: what a checkpoint holds once its lattice is taken.
-fn empty_fluid_state() -> FluidState<f32> {
+fn empty_fluid_state<T>() -> FluidState<T> {
     FluidState {
         dims: [0; 3],
         faces: [crate::fluid::Faces::Walls; 3],
@@ -344,15 +395,18 @@ fn empty_fluid_state() -> FluidState<f32> {
     }
 }
 
-fn read_checkpoint(path: &Path, scene: &Scene) -> Result<(CheckpointFile, LbmCheckpoint), RunError> {
+fn read_checkpoint<T: Real>(
+    path: &Path,
+    scene: &Scene,
+) -> Result<(CheckpointFile, LbmCheckpoint<LbmState<T>>), RunError> {
     Ok(checkpoint::read_solver(path, "lbm_proc", scene, "its lattice").map_err(RecordError::from)?)
 }
 
 /// The lattice as the run driver steps it.
-struct LbmRun<'a> {
+struct LbmRun<'a, T: Real> {
     scene: &'a Scene,
     setup: LbmSetup,
-    fluid: Fluid<f32>,
+    fluid: Fluid<T>,
     gates_removed: Vec<bool>,
     time: f64,
     steps: u64,
@@ -378,7 +432,7 @@ impl From<ExchangeFailure> for RunError {
 
 /// The LBM takes the grain states of a step, forces them in, answers the
 /// loads.
-impl Coupled for LbmRun<'_> {
+impl<T: Real> Coupled for LbmRun<'_, T> {
     type Sends = HydroLoad;
     type Receives = ParticleState;
     fn outgoing(&mut self, out: &mut Vec<HydroLoad>) {
@@ -393,7 +447,7 @@ impl Coupled for LbmRun<'_> {
     }
 }
 
-impl Solver for LbmRun<'_> {
+impl<T: Real> Solver for LbmRun<'_, T> {
     type Error = RunError;
 
     fn time(&self) -> f64 {
@@ -473,7 +527,7 @@ impl Solver for LbmRun<'_> {
     }
 
     fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
-        let c: LbmCheckpoint<LbmStateRef, &Gathered> = LbmCheckpoint {
+        let c: LbmCheckpoint<LbmStateRef<T>, &Gathered> = LbmCheckpoint {
             state: LbmStateRef {
                 version: STATE_VERSION,
                 time: self.time,
@@ -572,8 +626,8 @@ impl Solver for LbmRun<'_> {
     }
 }
 
-fn release_gates(
-    fluid: &mut Fluid<f32>,
+fn release_gates<T: Real>(
+    fluid: &mut Fluid<T>,
     setup: &LbmSetup,
     removed: &mut [bool],
     time: f64,
@@ -644,11 +698,11 @@ fn slice_column(samples: &[Option<Sample>], cs2: f64, to_pascal: f64, weight_z: 
 }
 
 #[allow(clippy::too_many_arguments)]
-fn record_frame(
+fn record_frame<T: Real>(
     frames: &mut Gathered,
     rec: &mut Recording,
     channels: Option<&Channels>,
-    fluid: &Fluid<f32>,
+    fluid: &Fluid<T>,
     scene: &Scene,
     setup: &LbmSetup,
     t: f64,

@@ -59,7 +59,7 @@ fn mixed_liquids_are_refused() {
 fn hydrostatic_tank_scene_stays_at_rest() {
     let s = scene("validation/hydrostatic_tank.toml", &[]);
     let setup = LbmSetup::from_scene(&s).unwrap();
-    let mut fluid = lbm_proc::run::initial_fluid(&s, &setup).unwrap();
+    let mut fluid = lbm_proc::run::initial_fluid::<f32>(&s, &setup).unwrap();
     let mass0 = fluid.liquid_mass();
     for _ in 0..1000 {
         fluid.step();

@@ -116,3 +116,46 @@ fn water_recording_reads_back() {
     assert_eq!((grids, surfaces), (11, 11));
     assert!(states >= 1, "a final state");
 }
+
+/// The same water block with its populations stored in f64
+/// (`lbm.precision = "f64"`): the reference that measures what f32 costs.
+/// Its mass is kept to f64 round-off (the f32 lattice drifts by the f32
+/// round-off of 1 + 3 g d, ~1e-8 per thousand steps: a bar of 1e-11 is
+/// failed by any f32 storage left on the path), its front is the f32
+/// run's within the f32 round-off's effect on a 0.1 s dam break, and its
+/// recorded state says its precision so that an f32 reader refuses it.
+#[test]
+fn water_block_in_f64_keeps_its_mass_and_matches_f32() {
+    let out = coupler_run(
+        "water_block_f64",
+        "scenes/validation/water_block.toml",
+        &["--set", "output.end_time=0.1", "--set", "lbm.precision=\"f64\""],
+    );
+    let text = std::fs::read_to_string(out.join("summary.json")).expect("summary.json written");
+    let s: serde_json::Value = serde_json::from_str(&text).expect("summary is JSON");
+    let f32_run = summary();
+    assert_eq!(s["status"], "completed");
+    assert_eq!(s["steps"], f32_run["steps"]);
+    let change = s["lbm"]["mass_relative_change"].as_f64().unwrap();
+    let change_f32 = f32_run["lbm"]["mass_relative_change"].as_f64().unwrap();
+    assert!(change.abs() < 1e-11, "f64 mass change {change:e} (f32: {change_f32:e})");
+    // The initial mass differs by the f32 rounding of the hydrostatic densities alone.
+    let (m64, m32) = (s["lbm"]["mass_initial"].as_f64().unwrap(), f32_run["lbm"]["mass_initial"].as_f64().unwrap());
+    assert!((m64 - m32).abs() < 1e-6 * m32, "initial mass {m64} against f32's {m32}");
+    let fronts = |v: &serde_json::Value| -> Vec<f64> {
+        v["liquid_front"].as_array().unwrap().iter().map(|f| f["x_norm"].as_f64().unwrap()).collect()
+    };
+    let (x64, x32) = (fronts(&s), fronts(&f32_run));
+    assert_eq!(x64.len(), x32.len());
+    // One cell is 0.05 L0 (2 mm of 40 mm): the fronts may differ by a cell where
+    // round-off tips an interface cell's conversion, not more.
+    for (a, b) in x64.iter().zip(&x32) {
+        assert!((a - b).abs() <= 0.05 + 1e-9, "front f64 {a} against f32 {b}: {x64:?} / {x32:?}");
+    }
+    let bytes = std::fs::read(out.join("run.mcap")).expect("run.mcap written");
+    let (_, state) = lbm_proc::run::LbmState::<f64>::last_of_recording(&bytes).expect("an f64 /lbm/state");
+    assert_eq!(state.fluid.dims, [100, 25, 40]);
+    assert_eq!(state.fluid.populations.len(), 19 * 100 * 25 * 40);
+    let refused = lbm_proc::run::LbmState::last_in_recording(&bytes).unwrap_err();
+    assert!(refused.contains("lbm_proc::run::LbmState<f64>") && refused.contains("lbm.precision"), "{refused}");
+}

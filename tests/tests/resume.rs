@@ -103,6 +103,19 @@ fn a_killed_fluid_run_resumes_bit_for_bit() {
     );
 }
 
+/// The f64 lattice (`lbm.precision`) checkpoints and resumes through the
+/// same path, its populations kept in f64.
+#[test]
+fn a_killed_f64_fluid_run_resumes_bit_for_bit() {
+    killed_and_resumed_equals_straight(
+        "resume_lbm_f64",
+        "scenes/validation/water_block.toml",
+        &["output.checkpoint_interval=0.03", "output.state_interval=0.05", "lbm.precision=\"f64\""],
+        &["lbm_proc"],
+        "lbm_proc",
+    );
+}
+
 /// Also what `--resume` refuses: other physics than the run's (its
 /// checkpoints passed over, named, the run directory left as it was) and a
 /// finished run (its checkpoints removed when it completed).
