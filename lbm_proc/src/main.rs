@@ -28,8 +28,10 @@ enum Command {
     /// Run a fluid scene and record it to OUT/lbm.mcap.
     Run(RunArgs),
     /// Throughput: a periodic bulk box (no free surface) against a STREAM
-    /// triad measured in the same run, on 1 and 2 threads; with --scene, also
-    /// STEPS steps of that scene counting only the cells updated.
+    /// triad measured in the same run, on 1 and 2 threads, with f32
+    /// populations (BGK and TRT) and with f64 (BGK); with --scene, also
+    /// STEPS steps of that scene counting only the cells updated, stored as
+    /// its `lbm.precision` says.
     Bench {
         /// Bulk box cells along x, y, z.
         #[arg(long, num_args = 3, default_values_t = [128, 64, 64])]
@@ -89,6 +91,13 @@ fn bench(bulk: &[usize], scene: Option<&PathBuf>, set: &[String], steps: u64) ->
                 let mlups = bulk_mlups::<f32>(dims, params, 20, 3);
                 line += &format!(",\"bulk_{name}_mlups\":{mlups:.2},\"bulk_{name}_fraction_of_bound\":{:.3}", mlups / bound);
             }
+            // The same BGK kernel with f64 populations (`lbm.precision`), beside the f32 one.
+            let bound_f64 = bandwidth / bytes_per_update::<f64>() as f64 / 1e6;
+            let mlups = bulk_mlups::<f64>(dims, FluidParams::new(0.6), 20, 3);
+            line += &format!(
+                ",\"bulk_bgk_smagorinsky_f64_mlups\":{mlups:.2},\"bulk_bgk_smagorinsky_f64_fraction_of_bound\":{:.3}",
+                mlups / bound_f64
+            );
             if let Some(scene) = &scene {
                 match scene_mlups(scene, steps) {
                     Ok(m) => line += &format!(",\"scene\":\"{}\",\"scene_active_mlups\":{m:.2}", scene.spec.scene.name),
