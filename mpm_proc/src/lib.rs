@@ -7,6 +7,7 @@ pub mod drag;
 pub mod grid;
 pub mod mohr_coulomb;
 pub mod plan;
+pub mod pressure;
 pub mod run;
 pub mod setup;
 pub mod solver;
