@@ -231,6 +231,9 @@ pub struct PressureStats {
     pub worst_residual: f64,
     /// Largest number of pressured elements in one step.
     pub max_unknowns: usize,
+    /// Element-steps whose solved pressure was below the tension cap −T
+    /// and was clamped to it.
+    pub clamped: u64,
     /// Wall seconds in the pressure stages (reference, assembly, solve,
     /// corrector).
     pub seconds: f64,
@@ -1558,7 +1561,20 @@ impl Mpm {
         }
         imp.problem.merge_solid_into_liquid(vs, vl);
         let report = imp.solver.solve(&imp.problem, vs, vl, &mut imp.pressure);
+        // The tension cap p ≥ −T as a clamp (design §1 step 4 without the
+        // active set): a clamped element pushes with −T and leaves its
+        // continuity unbalanced, as a free one does.
+        let cap = -self.params.cavitation;
+        let mut clamped = 0;
+        for &e in imp.problem.unknowns() {
+            let p = &mut imp.pressure[e as usize];
+            if *p < cap {
+                *p = cap;
+                clamped += 1;
+            }
+        }
         let st = &mut imp.stats;
+        st.clamped += clamped;
         st.solves += 1;
         st.iterations += report.iterations as u64;
         st.max_iterations = st.max_iterations.max(report.iterations);
