@@ -1,7 +1,9 @@
 //! Semi-implicit pore pressure on the structured grid: the operator and the
 //! linear solver of `docs/design/mpm-implicit-pressure.md` (§1 step 4, §3).
-//! Not yet called by [`crate::solver::Mpm::step`]: this module is the first
-//! building block of that design, self-contained and tested on its own.
+//! [`crate::solver::Mpm::step`] calls it under `mpm.pressure_scheme =
+//! "implicit"` (stages `pressure_reference`, `assemble_pressure_problem`,
+//! `solve_pressure`, `correct_velocities` of `solver.rs`); tested on its
+//! own here and in the whole step in `tests/implicit_pressure.rs`.
 //!
 //! One pressure p_e per element centre (P0) acts on the bilinear (Q1) nodal
 //! velocities of both phases. With the predictor velocities v* (all forces

@@ -313,7 +313,7 @@ fn run_on_pool(
         }
     };
     let end_time = out.end_time;
-    drive(
+    let result = drive(
         &mut solver,
         None,
         &mut rec,
@@ -323,7 +323,22 @@ fn run_on_pool(
         stop,
         &mut |t, steps| progress.phase("collapse", t, end_time, steps),
         &summary_path,
-    )
+    );
+    if let Some(st) = solver.mpm.pressure_stats() {
+        // Gravity phase and collapse together.
+        progress.log(&format!(
+            "implicit pressure: {} solves, {:.1} PCG iterations per solve (at most {}), {} above the tolerance (worst residual {:.1e}), up to {} pressured elements, {} element-steps clamped at the tension cap, {:.1} s wall in the pressure stages",
+            st.solves,
+            st.iterations as f64 / st.solves.max(1) as f64,
+            st.max_iterations,
+            st.unconverged,
+            st.worst_residual,
+            st.max_unknowns,
+            st.clamped,
+            st.seconds
+        ));
+    }
+    result
 }
 
 impl<'a> MpmRun<'a> {

@@ -76,6 +76,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         xpic_order: spec.xpic_order,
         apic: spec.transfer.is_affine(),
         linear_pressure: spec.pressure_reconstruction == schemas::scene::MpmPressureReconstruction::Linear,
+        implicit_pressure: spec.pressure_scheme == schemas::scene::MpmPressureScheme::Implicit,
         flip_share: [spec.flip_share_in_effect(), spec.liquid_flip_share_in_effect()],
         soil: MohrCoulomb::new(
             spec.young_modulus,

@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::drag::DragLaw;
 use crate::grid::{Grid, Stencil};
 use crate::mohr_coulomb::MohrCoulomb;
+use crate::pressure::{ElementRole, PressureProblem, PressureSolver};
 use schemas::scene::ShapeFunctions;
 
 /// Porosity bounds of the solid points: grains are incompressible, so n
@@ -64,6 +65,12 @@ pub struct Params {
     /// Refit each element's pore pressures to a least-squares plane every
     /// step (`mpm.pressure_reconstruction = "linear"`).
     pub linear_pressure: bool,
+    /// Semi-implicit pore pressure (`mpm.pressure_scheme = "implicit"`,
+    /// docs/design/mpm-implicit-pressure.md §1): the nodal solve without
+    /// the pore pressure, one pressure per pressured element from the
+    /// mixture continuity, then damping and wall friction on the total
+    /// force. false: the explicit per-point law.
+    pub implicit_pressure: bool,
     pub soil: MohrCoulomb,
     pub drag: DragLaw,
 }
@@ -201,6 +208,66 @@ struct NodeUpdate {
     filtered: [[f64; 2]; 2],
     /// On a wall node: the grains' normal load on the wall, N.
     wall_load: f64,
+    /// The undamped nodal forces on [solid, liquid] the accelerations came
+    /// from (N/m; without the pore pressure under the implicit scheme), and
+    /// the nodal drag coefficient Q (N·s/m³ per metre of width).
+    force: [[f64; 2]; 2],
+    drag: f64,
+}
+
+/// Relative residual and iteration cap of the implicit pressure's PCG.
+const PRESSURE_TOLERANCE: f64 = 1e-8;
+const PRESSURE_MAX_ITERATIONS: usize = 2000;
+
+/// What the implicit pressure solves cost over a run.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct PressureStats {
+    pub solves: u64,
+    /// CG iterations, summed and the largest of one solve.
+    pub iterations: u64,
+    pub max_iterations: usize,
+    /// Solves that stopped at the cap above the tolerance.
+    pub unconverged: u64,
+    pub worst_residual: f64,
+    /// Largest number of pressured elements in one step.
+    pub max_unknowns: usize,
+    /// Element-steps whose solved pressure was below the tension cap −T
+    /// and was clamped to it.
+    pub clamped: u64,
+    /// Wall seconds in the pressure stages (reference, assembly, solve,
+    /// corrector).
+    pub seconds: f64,
+}
+
+/// Scratch of the implicit pressure (`Params::implicit_pressure`).
+#[derive(Debug, Clone)]
+struct ImplicitPressure {
+    problem: PressureProblem,
+    solver: PressureSolver,
+    /// Per element: the pressures of the step, Pa (given ones included).
+    pressure: Vec<f64>,
+    /// Per element: Σ V and Σ V p over its pressured liquid points.
+    reference: Vec<[f64; 2]>,
+    /// Per node: the predictor velocities v*, then the corrected ones, m/s.
+    velocity: [Vec<[f64; 2]>; 2],
+    /// Per node: the pressure forces Dᵀp on [solid, liquid], N/m.
+    pressure_force: [Vec<[f64; 2]>; 2],
+    stats: PressureStats,
+}
+
+impl ImplicitPressure {
+    fn new(grid: Grid, params: &Params) -> Self {
+        let (ne, nodes) = (grid.element_count(), grid.node_count());
+        Self {
+            problem: PressureProblem::new(grid, params.dt, params.bulk_modulus),
+            solver: PressureSolver::new(PRESSURE_TOLERANCE, PRESSURE_MAX_ITERATIONS),
+            pressure: vec![0.0; ne],
+            reference: vec![[0.0; 2]; ne],
+            velocity: [vec![[0.0; 2]; nodes], vec![[0.0; 2]; nodes]],
+            pressure_force: [vec![[0.0; 2]; nodes], vec![[0.0; 2]; nodes]],
+            stats: PressureStats::default(),
+        }
+    }
 }
 
 /// Per-element fields.
@@ -309,6 +376,8 @@ pub struct Mpm {
     /// Largest pore pressure at the end of any step since the recorder last
     /// took it (`take_pore_pressure_peak`), Pa: a diagnostic, not state.
     pore_pressure_peak: f64,
+    /// The implicit pressure's scratch (`Params::implicit_pressure`).
+    implicit: Option<Box<ImplicitPressure>>,
 }
 
 /// Sums over the frictional wall nodes (`Fixities::contact`) of one step,
@@ -407,8 +476,12 @@ impl Mpm {
             timing: false,
             wall_forces: WallForces::default(),
             pore_pressure_peak: 0.0,
+            implicit: None,
             state,
         };
+        if mpm.params.implicit_pressure {
+            mpm.implicit = Some(Box::new(ImplicitPressure::new(grid, &mpm.params)));
+        }
         mpm.apply_gate_fixities();
         mpm
     }
@@ -452,8 +525,15 @@ impl Mpm {
         std::mem::take(&mut self.pore_pressure_peak)
     }
 
+    /// What the implicit pressure solves have cost so far (None under the
+    /// explicit scheme).
+    pub fn pressure_stats(&self) -> Option<PressureStats> {
+        self.implicit.as_ref().map(|i| i.stats)
+    }
+
     /// Advances one step of Δt.
     pub fn step(&mut self) {
+        let implicit = self.params.implicit_pressure;
         let t0 = self.timing.then(std::time::Instant::now);
         self.locate();
         let t1 = self.timing.then(std::time::Instant::now);
@@ -462,13 +542,25 @@ impl Mpm {
         let t2 = self.timing.then(std::time::Instant::now);
         self.prepare_forces();
         self.solve_nodes();
+        if implicit {
+            let started = std::time::Instant::now();
+            self.pressure_reference();
+            self.assemble_pressure_problem();
+            self.solve_pressure();
+            self.correct_velocities();
+            if let Some(i) = self.implicit.as_mut() {
+                i.stats.seconds += started.elapsed().as_secs_f64();
+            }
+        }
         self.apply_wall_friction();
         let t3 = self.timing.then(std::time::Instant::now);
         self.update_velocities();
         self.remap_momentum();
         self.volumetric_strain_per_element();
         self.update_points();
-        self.reconstruct_pressure();
+        if !implicit {
+            self.reconstruct_pressure();
+        }
         self.pore_pressure_peak = self.state.liquid.pressure.iter().fold(self.pore_pressure_peak, |m, &p| m.max(p));
         self.state.time += self.params.dt;
         self.state.steps += 1;
@@ -783,6 +875,7 @@ impl Mpm {
         let liquid = &self.state.liquid;
         let fill = &self.fill;
         let el = &self.elements;
+        let implicit = self.params.implicit_pressure;
         let ls = &mut self.liquid_scratch;
         ls.force.resize(liquid.set.len(), [0.0; 6]);
         self.liquid_fill.resize(liquid.set.len(), 0.0);
@@ -798,7 +891,8 @@ impl Mpm {
                 let e = ls.element[p] as usize;
                 let (n, gn) = (el.porosity[e], el.grad_porosity[e]);
                 let v = liquid.set.volume[p];
-                let pr = liquid.pressure[p];
+                // The implicit scheme's predictor leaves the pore pressure out.
+                let pr = if implicit { 0.0 } else { liquid.pressure[p] };
                 let t = liquid.viscous[p];
                 let (sxx, szz, sxz) = (t[0] - pr, t[1] - pr, t[2]);
                 *f = [sxx * v, szz * v, sxz * v, n, (sxx * gn[0] + sxz * gn[1]) * v, (sxz * gn[0] + szz * gn[1]) * v];
@@ -825,6 +919,7 @@ impl Mpm {
         let (contact, solid_fraction, mu) = (&self.fixities.contact, &self.solid_fraction, p.wall_friction);
         let tol = self.mass_tolerance;
         let xpic = self.xpic_active();
+        let implicit = p.implicit_pressure;
         let [w_s, w_l] = &self.xpic_points;
         let mut accel = std::mem::take(&mut self.accel);
         self.for_active_nodes(&mut accel, |node, out| {
@@ -874,7 +969,8 @@ impl Mpm {
             for d in 0..2 {
                 let m = mask[node][d];
                 if m == 0.0 {
-                    if normal_axis == Some(d) && mu > 0.0 {
+                    // Implicit: the wall's reaction needs the pressure (`correct_velocities`).
+                    if !implicit && normal_axis == Some(d) && mu > 0.0 {
                         reaction = Self::wall_reaction(s, d, [fs[d], fl[d]], q, into[d], dt, tol);
                     }
                     // A fixed component ends the step at rest: its "acceleration"
@@ -891,6 +987,11 @@ impl Mpm {
                     }
                     continue;
                 }
+                if implicit {
+                    // The predictor: no damping, which needs the total force.
+                    [a[0][d], a[1][d]] = Self::coupled_accelerations(s, [fs[d], fl[d]], [vs[d], vl[d]], q, dt, tol);
+                    continue;
+                }
                 let damp = |f: f64, v: f64| if v != 0.0 { f - alpha * f.abs() * v.signum() } else { f };
                 let force = [damp(fs[d], vs[d]), damp(fl[d], vl[d])];
                 [a[0][d], a[1][d]] = Self::coupled_accelerations(s, force, [vs[d], vl[d]], q, dt, tol);
@@ -898,21 +999,30 @@ impl Mpm {
             // The grains' share of the wall's normal reaction: the solid's
             // less the pore pressure's share (1 − n)/n of the liquid's.
             let mut wall_load = 0.0;
-            if normal_axis.is_some() && s.mass_s > tol {
-                let solid_share = solid_fraction[node];
-                let pore = if s.mass_l > tol && solid_share < 1.0 {
-                    solid_share / (1.0 - solid_share) * reaction[1]
-                } else {
-                    0.0
-                };
-                wall_load = (reaction[0] - pore).max(0.0);
+            if normal_axis.is_some() {
+                wall_load = Self::grains_wall_load(s, solid_fraction[node], reaction, tol);
             }
             for (phase, mass) in [(0, s.mass_s), (1, s.mass_l)] {
                 back[phase] = if mass > tol { [back[phase][0] / mass, back[phase][1] / mass] } else { [0.0; 2] };
             }
-            *out = NodeUpdate { a, filtered: back, wall_load };
+            *out = NodeUpdate { a, filtered: back, wall_load, force: [fs, fl], drag: q };
         });
         self.accel = accel;
+    }
+
+    /// The grains' share of a wall's normal reaction `reaction` on
+    /// [solid, liquid] (`wall_reaction`) at a node whose nodal solid
+    /// fraction is `solid_share`: the solid's less the pore pressure's share
+    /// (1 − n)/n of the liquid's, N; 0 without solid.
+    #[inline(always)]
+    fn grains_wall_load(s: &NodeSums, solid_share: f64, reaction: [f64; 2], tol: f64) -> f64 {
+        if s.mass_s > tol {
+            let pore =
+                if s.mass_l > tol && solid_share < 1.0 { solid_share / (1.0 - solid_share) * reaction[1] } else { 0.0 };
+            (reaction[0] - pore).max(0.0)
+        } else {
+            0.0
+        }
     }
 
     /// Coulomb friction of the walls on the solid (`Fixities::contact`,
@@ -1241,10 +1351,15 @@ impl Mpm {
 
     /// Both point sets at once (their updates share nothing but read-only grid data).
     fn update_points(&mut self) {
-        let Self { grid, params, state, solid_scratch, liquid_scratch, elements, disp, liquid_fill, .. } = self;
+        let Self { grid, params, state, solid_scratch, liquid_scratch, elements, disp, liquid_fill, implicit, .. } =
+            self;
+        let solved = implicit.as_deref().map(|i| (&i.problem, i.pressure.as_slice()));
         rayon::join(
             || Self::update_solid_points(grid, params, &mut state.solid, &solid_scratch.stencil, disp),
-            || Self::update_liquid_points(grid, params, &mut state.liquid, liquid_scratch, elements, disp, liquid_fill),
+            || {
+                let l = &mut state.liquid;
+                Self::update_liquid_points(grid, params, l, liquid_scratch, elements, disp, liquid_fill, solved)
+            },
         );
     }
 
@@ -1282,6 +1397,10 @@ impl Mpm {
     }
 
     /// Pore pressure, viscous stress, volume and position of liquid points.
+    /// `solved`: under the implicit scheme, the step's pressure problem and
+    /// element pressures; a point takes its element's (design §1 step 7),
+    /// 0 and free where the element was not pressured.
+    #[allow(clippy::too_many_arguments)]
     fn update_liquid_points(
         grid: &Grid,
         p: &Params,
@@ -1290,6 +1409,7 @@ impl Mpm {
         el: &ElementScratch,
         disp: &[[[f64; 2]; 2]],
         fill: &[f64],
+        solved: Option<(&PressureProblem, &[f64])>,
     ) {
         let row = grid.node_dims()[0];
         let (lo, hi) = (grid.origin, grid.far_corner());
@@ -1312,8 +1432,13 @@ impl Mpm {
                 // A part-empty element (drained pores, a flow's surface, a
                 // thinning layer) is the free surface's: its strain closes
                 // the empty part rather than compressing the water.
-                *free = fill[i] < fs_fill || el.filling_ratio(e, element_area) < fs_fill;
-                *pr = if *free { 0.0 } else { (*pr - k * el.volumetric_strain[e]).max(-cav) };
+                if let Some((problem, pressure)) = solved {
+                    *free = !problem.is_unknown(e);
+                    *pr = if *free { 0.0 } else { pressure[e].max(-cav) };
+                } else {
+                    *free = fill[i] < fs_fill || el.filling_ratio(e, element_area) < fs_fill;
+                    *pr = if *free { 0.0 } else { (*pr - k * el.volumetric_strain[e]).max(-cav) };
+                }
                 let de = st.strain(row, |i| disp[i][1]);
                 let (solid_mass, fluidised_mass) = (el.solid_mass_solid[e], el.solid_mass_fluidised[e]);
                 if solid_mass == 0.0 || fluidised_mass > solid_mass {
@@ -1339,6 +1464,189 @@ impl Mpm {
                 x[0] = (x[0] + du[0]).clamp(lo[0], hi[0]);
                 x[1] = (x[1] + du[1]).clamp(lo[1], hi[1]);
             });
+    }
+}
+
+/// The semi-implicit pore pressure's stages (docs/design/mpm-implicit-pressure.md
+/// §1 steps 1–5; `Params::implicit_pressure`), between `solve_nodes` (the
+/// predictor: no pore pressure, no damping, drag implicit per node) and
+/// `apply_wall_friction`.
+impl Mpm {
+    /// Step 1: per element, Σ V and Σ V p over its pressured (not free)
+    /// liquid points, p the pressure each carried in (its element's at the
+    /// last step): p̄_e, the backward Euler's old pressure and the solve's
+    /// warm start.
+    fn pressure_reference(&mut self) {
+        let Some(imp) = self.implicit.as_mut() else { return };
+        let l = &self.state.liquid;
+        imp.reference.fill([0.0; 2]);
+        for (p, &e) in self.liquid_scratch.element.iter().enumerate() {
+            if !l.free_surface[p] {
+                let (w, r) = (l.set.volume[p], &mut imp.reference[e as usize]);
+                r[0] += w;
+                r[1] += w * l.pressure[p];
+            }
+        }
+    }
+
+    /// Steps 2 and 4: the pressure problem of the step. Every node with
+    /// mass gets its masked predictor mobility (masses, the drag Q of
+    /// `solve_nodes`); every element with liquid its porosity field, p̄ and
+    /// role: unknown where its filling ratio is at least
+    /// `free_surface_fill` (`ElementRole::classify`), p = 0 otherwise.
+    fn assemble_pressure_problem(&mut self) {
+        let grid = self.grid;
+        let Some(imp) = self.implicit.as_mut() else { return };
+        let p = &self.params;
+        let (row, nx, area, tol) = (grid.node_dims()[0], grid.elements[0], grid.h * grid.h, self.mass_tolerance);
+        let problem = &mut imp.problem;
+        problem.reset(p.dt, p.bulk_modulus);
+        let (r0, r1) = self.rows;
+        let (c0, c1) = self.columns;
+        for r in r0..=r1 {
+            for c in c0..=c1 {
+                let node = r * row + c;
+                let s = &self.sums[node];
+                if s.mass_s > tol || s.mass_l > tol {
+                    problem.set_node(node, [s.mass_s, s.mass_l], self.accel[node].drag, self.mask[node], tol);
+                }
+            }
+        }
+        let el = &self.elements;
+        for r in r0.max(1)..r1.min(grid.elements[1] + 1) {
+            for col in c0.max(1)..c1.min(nx + 1) {
+                let e = (r - 1) * nx + (col - 1);
+                if el.liquid_points[e] == 0 {
+                    continue;
+                }
+                let role = ElementRole::classify(true, el.filling_ratio(e, area), p.free_surface_fill);
+                let [w, wp] = imp.reference[e];
+                let reference = if w > 0.0 { wp / w } else { 0.0 };
+                problem.set_element(e, el.porosity[e], el.grad_porosity[e], reference, role);
+                // Warm start from p̄ (not the last solution: a restart sees the same).
+                imp.pressure[e] = reference;
+            }
+        }
+        problem.index_elements();
+    }
+
+    /// Step 4: the predictor velocities v* = v⁰ + Δt a* (0 on fixed
+    /// components and for a phase without mass; the solid's = the liquid's
+    /// where there is no solid), then S p = C p̄ − D v* by Jacobi-PCG.
+    fn solve_pressure(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let Some(imp) = self.implicit.as_mut() else { return };
+        let (dt, tol) = (self.params.dt, self.mass_tolerance);
+        let [vs, vl] = &mut imp.velocity;
+        vs.fill([0.0; 2]);
+        vl.fill([0.0; 2]);
+        let (r0, r1) = self.rows;
+        let (c0, c1) = self.columns;
+        for r in r0..=r1 {
+            for c in c0..=c1 {
+                let node = r * row + c;
+                let (s, a, mask) = (&self.sums[node], &self.accel[node].a, self.mask[node]);
+                for d in 0..2 {
+                    if mask[d] == 0.0 {
+                        continue;
+                    }
+                    if s.mass_s > tol {
+                        vs[node][d] = self.velocity_s[node][d] + dt * a[0][d];
+                    }
+                    if s.mass_l > tol {
+                        vl[node][d] = self.velocity_l[node][d] + dt * a[1][d];
+                    }
+                }
+            }
+        }
+        imp.problem.merge_solid_into_liquid(vs, vl);
+        let report = imp.solver.solve(&imp.problem, vs, vl, &mut imp.pressure);
+        // The tension cap p ≥ −T as a clamp (design §1 step 4 without the
+        // active set): a clamped element pushes with −T and leaves its
+        // continuity unbalanced, as a free one does.
+        let cap = -self.params.cavitation;
+        let mut clamped = 0;
+        for &e in imp.problem.unknowns() {
+            let p = &mut imp.pressure[e as usize];
+            if *p < cap {
+                *p = cap;
+                clamped += 1;
+            }
+        }
+        let st = &mut imp.stats;
+        st.clamped += clamped;
+        st.solves += 1;
+        st.iterations += report.iterations as u64;
+        st.max_iterations = st.max_iterations.max(report.iterations);
+        st.unconverged += u64::from(!report.converged);
+        st.worst_residual = st.worst_residual.max(report.relative_residual);
+        st.max_unknowns = st.max_unknowns.max(imp.problem.unknowns().len());
+    }
+
+    /// Step 5: the corrector v = v* + Δt A⁻¹ Dᵀp, then Cundall damping on
+    /// the total force f = f* + Dᵀp (the predictor's undamped forces and the
+    /// pressure's) as the explicit scheme damps it, taken through the same
+    /// mobility (v −= Δt A⁻¹ α|f| sgn v⁰, what the coupled solve gives for
+    /// the damped force), the walls' normal reactions with the pressure in
+    /// them, and the accelerations a = (v − v⁰)/Δt the point update reads.
+    /// Fixed components keep the predictor's (they stop the mapped velocity).
+    /// At a node without solid the whole column's force is the liquid's.
+    fn correct_velocities(&mut self) {
+        let row = self.grid.node_dims()[0];
+        let Some(imp) = self.implicit.as_mut() else { return };
+        let p = &self.params;
+        let (dt, alpha, mu, tol) = (p.dt, p.damping, p.wall_friction, self.mass_tolerance);
+        let [vs, vl] = &mut imp.velocity;
+        imp.solver.correct(&imp.problem, &imp.pressure, vs, vl);
+        let [fps, fpl] = &mut imp.pressure_force;
+        imp.problem.pressure_forces(&imp.pressure, fps, fpl);
+        let (r0, r1) = self.rows;
+        let (c0, c1) = self.columns;
+        for r in r0..=r1 {
+            for c in c0..=c1 {
+                let node = r * row + c;
+                let s = &self.sums[node];
+                let (has_s, has_l) = (s.mass_s > tol, s.mass_l > tol);
+                if !has_s && !has_l {
+                    continue;
+                }
+                let u = &mut self.accel[node];
+                let v0 = [self.velocity_s[node], self.velocity_l[node]];
+                let into = self.fixities.contact[node];
+                let normal_axis = if into[0] != 0.0 {
+                    Some(0)
+                } else if into[1] != 0.0 {
+                    Some(1)
+                } else {
+                    None
+                };
+                let mut reaction = [0.0; 2];
+                for d in 0..2 {
+                    let mut f = [u.force[0][d] + fps[node][d], u.force[1][d] + fpl[node][d]];
+                    if !has_s {
+                        f = [0.0, f[0] + f[1]];
+                    }
+                    if self.mask[node][d] == 0.0 {
+                        if normal_axis == Some(d) && mu > 0.0 {
+                            reaction = Self::wall_reaction(s, d, f, u.drag, into[d], dt, tol);
+                        }
+                        continue;
+                    }
+                    let mut v = [vs[node][d], vl[node][d]];
+                    if alpha > 0.0 {
+                        let damp = |f: f64, v: f64| if v != 0.0 { alpha * f.abs() * v.signum() } else { 0.0 };
+                        let damping = [damp(f[0], v0[0][d]), damp(f[1], v0[1][d])];
+                        let dv = imp.problem.mobility(node, d).apply(damping);
+                        v = [v[0] - dt * dv[0], v[1] - dt * dv[1]];
+                    }
+                    u.a[0][d] = if has_s { (v[0] - v0[0][d]) / dt } else { 0.0 };
+                    u.a[1][d] = if has_l { (v[1] - v0[1][d]) / dt } else { 0.0 };
+                }
+                if normal_axis.is_some() {
+                    u.wall_load = Self::grains_wall_load(s, self.solid_fraction[node], reaction, tol);
+                }
+            }
+        }
     }
 }
 

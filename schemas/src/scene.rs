@@ -394,6 +394,15 @@ pub struct MpmSpec {
     /// or `none`, each point's own history (docs/mpm.md, "Pore pressure").
     #[serde(default)]
     pub pressure_reconstruction: MpmPressureReconstruction,
+    /// How the pore pressure enters the momentum balance: `explicit`
+    /// (default), each liquid point's weakly compressible law updated from
+    /// the element's strain after the step; or `implicit`, one pressure per
+    /// pressured element solved each step from the mixture continuity with
+    /// the drag inside the mobility (docs/design/mpm-implicit-pressure.md),
+    /// the liquid points taking their element's pressure. Under `implicit`,
+    /// `pressure_reconstruction` is not used.
+    #[serde(default)]
+    pub pressure_scheme: MpmPressureScheme,
     /// Under `transfer = "flip"`: share of the grid (PIC) velocity blended
     /// into each point's FLIP update, per step. Pure FLIP (0) keeps
     /// point-velocity components the grid cannot see: next to the rough
@@ -635,6 +644,17 @@ impl MpmTransfer {
 /// columns' runouts by +0.3 % dry and −0.7 % saturated at 4 mm, +1.7 % and
 /// −2.6 % at 2 mm (docs/mpm.md, "Which transfer (session 18)").
 pub const DEFAULT_FLIP_SHARE: f64 = 0.9;
+
+/// How the pore pressure is advanced (`MpmSpec::pressure_scheme`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MpmPressureScheme {
+    /// Weakly compressible, per liquid point, from the last step's strain.
+    #[default]
+    Explicit,
+    /// Semi-implicit: one SPD system per step for the element pressures.
+    Implicit,
+}
 
 /// How an element's liquid points' pore pressures are tied together.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]

@@ -4,7 +4,9 @@
 //! the closed forms of [`super`] that `mpm_proc` itself uses.
 
 use schemas::plan::Plan;
-use schemas::scene::{Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmTransfer, PackingSpec, Scene};
+use schemas::scene::{
+    Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmPressureScheme, MpmTransfer, PackingSpec, Scene,
+};
 
 use super::{self as mpm, SceneMpm};
 
@@ -184,9 +186,10 @@ fn plan_materials(scene: &Scene, ts: &mpm::MpmTimeStep, p: &mut Plan) {
             liquid.viscosity,
             m.cavitation_threshold,
             m.free_surface_fill,
-            match m.pressure_reconstruction {
-                MpmPressureReconstruction::Linear => "pore pressure a least-squares plane per element",
-                MpmPressureReconstruction::None => "pore pressure per point",
+            match (m.pressure_scheme, m.pressure_reconstruction) {
+                (MpmPressureScheme::Implicit, _) => "pore pressure semi-implicit, one per pressured element",
+                (_, MpmPressureReconstruction::Linear) => "pore pressure a least-squares plane per element",
+                (_, MpmPressureReconstruction::None) => "pore pressure per point",
             }
         ));
     }
