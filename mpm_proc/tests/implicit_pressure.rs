@@ -9,7 +9,7 @@ use std::sync::atomic::AtomicBool;
 use common::Quiet;
 use mpm_proc::run::gravity_phase;
 use mpm_proc::setup::build;
-use mpm_proc::solver::{Mpm, SolidPoints};
+use mpm_proc::solver::Mpm;
 
 const G: f64 = 9.81;
 const RHO: f64 = 1000.0;
@@ -22,16 +22,7 @@ const H0: f64 = 0.06;
 /// rest with p = 0: the implicit scheme must build the hydrostatic field
 /// itself. `mpm` adds `[mpm]` lines.
 fn water_column(mpm: &str) -> Mpm {
-    let lines = format!("initial_stress = \"zero\"\nfloor = \"frictional\"\npressure_scheme = \"implicit\"\n{mpm}");
-    let scene = common::column(L0, H0, 0.12, Some(H0), 2.5e-3, &lines, &[]);
-    let mut m = build(&scene).unwrap().mpm;
-    let half = m.state.solid.set.half;
-    m.state.solid = SolidPoints::default();
-    m.state.solid.set.half = half;
-    for (mass, v) in m.state.liquid.set.mass.iter_mut().zip(&m.state.liquid.set.volume) {
-        *mass = RHO * v;
-    }
-    m
+    common::free_water_column(L0, H0, RHO, &format!("pressure_scheme = \"implicit\"\n{mpm}"))
 }
 
 /// Per element holding liquid points: (the points' pressure, their spread

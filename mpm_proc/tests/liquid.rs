@@ -5,8 +5,7 @@
 
 mod common;
 
-use mpm_proc::setup::build;
-use mpm_proc::solver::{Mpm, SolidPoints};
+use mpm_proc::solver::Mpm;
 
 const G: f64 = 9.81;
 const RHO: f64 = 1000.0;
@@ -18,17 +17,7 @@ const H0: f64 = 0.06;
 /// walls hold the normal velocity, the soil removed), stress free, with
 /// the given `[mpm]` lines.
 fn water_column(mpm: &str) -> Mpm {
-    let lines = format!("initial_stress = \"zero\"\nfloor = \"frictional\"\n{mpm}");
-    let scene = common::column(L0, H0, 0.12, Some(H0), 2.5e-3, &lines, &[]);
-    let mut m = build(&scene).unwrap().mpm;
-    let half = m.state.solid.set.half;
-    m.state.solid = SolidPoints::default();
-    m.state.solid.set.half = half;
-    // Free water: the liquid points represent the water itself (n = 1).
-    for (mass, v) in m.state.liquid.set.mass.iter_mut().zip(&m.state.liquid.set.volume) {
-        *mass = RHO * v;
-    }
-    m
+    common::free_water_column(L0, H0, RHO, mpm)
 }
 
 /// The `[mpm]` keys of `transfer`: under AFLIP the water points take the

@@ -75,3 +75,21 @@ condition = "{condition}"
     let overrides: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
     Scene::from_toml_str(&text, std::path::Path::new("."), &overrides).unwrap_or_else(|e| panic!("test scene: {e}"))
 }
+
+/// A free-water column `l0` × `h0` m of density `rho` (the soil removed,
+/// its liquid points the water itself, n = 1) in an `l0` × 0.12 m box
+/// whose floor and side walls hold the normal velocity, stress free, on
+/// 2.5 mm elements, with the given `[mpm]` lines.
+#[allow(dead_code)] // not every test file builds one
+pub fn free_water_column(l0: f64, h0: f64, rho: f64, mpm: &str) -> mpm_proc::solver::Mpm {
+    let lines = format!("initial_stress = \"zero\"\nfloor = \"frictional\"\n{mpm}");
+    let scene = column(l0, h0, 0.12, Some(h0), 2.5e-3, &lines, &[]);
+    let mut m = mpm_proc::setup::build(&scene).unwrap().mpm;
+    let half = m.state.solid.set.half;
+    m.state.solid = mpm_proc::solver::SolidPoints::default();
+    m.state.solid.set.half = half;
+    for (mass, v) in m.state.liquid.set.mass.iter_mut().zip(&m.state.liquid.set.volume) {
+        *mass = rho * v;
+    }
+    m
+}
