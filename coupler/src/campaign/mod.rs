@@ -677,7 +677,10 @@ pub fn run(args: Args, command_line: String) -> ExitCode {
         .map(|(c, _)| c.name.as_str())
         .collect();
     if bad.is_empty() {
-        eprintln!("coupler: campaign {} finished: {done} cases in {wall:.0} s", campaign.name);
+        eprintln!(
+            "coupler: campaign {} finished: {done} cases; this invocation ran {} of them in {wall:.0} s",
+            campaign.name, outcome.started
+        );
         ExitCode::SUCCESS
     } else {
         eprintln!(
