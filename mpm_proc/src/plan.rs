@@ -11,7 +11,7 @@
 //! missing pieces come out as `None` or NaN. [`SceneMpm`] adds them to a
 //! [`Scene`] as methods.
 
-use schemas::scene::{PackingSpec, Scene};
+use schemas::scene::{MpmPressureScheme, PackingSpec, Scene};
 
 mod report;
 pub use report::{plan, MEASURED_MPM_RATE};
@@ -57,7 +57,12 @@ pub struct MpmTimeStep {
     pub liquid: Option<f64>,
     /// Dry P-wave speed c_d, m/s (soil present).
     pub dry: Option<f64>,
-    /// The fastest of those present, m/s, and which one it is.
+    /// The fastest of the waves that limit the step, m/s, and which one it
+    /// is: every wave present under the explicit pore pressure; under
+    /// `mpm.pressure_scheme = "implicit"` with soil present only the dry
+    /// skeleton's, since the pressure (the undrained and the liquid waves)
+    /// is integrated by backward Euler, stable at any step (design note
+    /// docs/design/mpm-implicit-pressure.md §5: ~1.9× the explicit step).
     pub max_speed: f64,
     pub limiting: Wave,
     /// Δt = `mpm.courant` · `mpm.element_size` / c_max, s.
@@ -175,7 +180,8 @@ impl SceneMpm for Scene {
     /// The wave speeds of the MPM scene and the CFL step from them:
     /// c_u = √((E_oed + K_L/n0)/ρ_sat) with soil and liquid, c_L = √(K_L/ρ_L)
     /// with liquid, c_d = √(E_oed/((1 − n0)ρ_s)) with soil;
-    /// Δt = courant · element_size / max(c).
+    /// Δt = courant · element_size / max(c) over the waves that limit
+    /// (`MpmTimeStep::max_speed`).
     fn mpm_time_step(&self) -> MpmTimeStep {
         let m = self.mpm();
         let e_oed = oedometric_modulus(m.young_modulus, m.poisson_ratio);
@@ -199,7 +205,11 @@ impl SceneMpm for Scene {
         };
         let mut max_speed = f64::NAN;
         let mut limiting = Wave::Undrained;
+        let pressure_implicit = m.pressure_scheme == MpmPressureScheme::Implicit && dry.is_some();
         for (c, w) in [(undrained, Wave::Undrained), (liquid, Wave::Liquid), (dry, Wave::Dry)] {
+            if pressure_implicit && w != Wave::Dry {
+                continue;
+            }
             if let Some(c) = c {
                 if max_speed.is_nan() || c > max_speed {
                     max_speed = c;
@@ -283,6 +293,21 @@ mod tests {
         let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/validation/mpm_lab_column_defaults.toml");
         Scene::load(&path, &set).unwrap()
+    }
+
+    /// Under the implicit pore pressure the skeleton's wave limits the
+    /// step: Δt = 0.5 · 0.004 / 92.9 = 2.15e-5 s, 1.94× the explicit one
+    /// (c_u/c_d); water alone keeps its own wave (nothing else would bound
+    /// the step).
+    #[test]
+    fn the_implicit_pore_pressure_steps_at_the_skeletons_wave() {
+        let explicit = load(&[]).mpm_time_step();
+        let t = load(&["mpm.pressure_scheme=\"implicit\""]).mpm_time_step();
+        assert_eq!(t.limiting, Wave::Dry);
+        assert!(close(t.dt, 0.5 * 0.004 / t.dry.unwrap(), 1e-14) && close(t.dt, 2.153e-5, 1e-3), "{t:?}");
+        assert!(close(t.dt / explicit.dt, explicit.undrained.unwrap() / t.dry.unwrap(), 1e-12));
+        let water = load(&["particles=[]", "analysis.condition=\"liquid\"", "mpm.pressure_scheme=\"implicit\""]);
+        assert_eq!(water.mpm_time_step().limiting, Wave::Liquid);
     }
 
     #[test]

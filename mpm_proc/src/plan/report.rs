@@ -106,12 +106,17 @@ fn plan_waves_and_cost(scene: &Scene, ts: &mpm::MpmTimeStep, points: usize, p: &
     p.line(
         "waves",
         format!(
-            "undrained P {}, liquid {}, dry P {}; fastest {:.1} m/s ({})",
+            "undrained P {}, liquid {}, dry P {}; the step is limited by {:.1} m/s ({}){}",
             speed(ts.undrained),
             speed(ts.liquid),
             speed(ts.dry),
             ts.max_speed,
-            ts.limiting.name()
+            ts.limiting.name(),
+            if m.pressure_scheme == schemas::scene::MpmPressureScheme::Implicit && ts.dry.is_some() {
+                ": the pore pressure is implicit, so the liquid's waves do not limit it"
+            } else {
+                ""
+            }
         ),
     );
     p.line(
