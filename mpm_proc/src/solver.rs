@@ -957,13 +957,7 @@ impl Mpm {
             let (vs, vl) = (vs_all[node], vl_all[node]);
             let mut a = [[0.0; 2]; 2];
             let into = contact[node];
-            let normal_axis = if into[0] != 0.0 {
-                Some(0)
-            } else if into[1] != 0.0 {
-                Some(1)
-            } else {
-                None
-            };
+            let normal_axis = wall_normal_axis(into);
             // Momentum per unit time the wall takes from each phase along its normal.
             let mut reaction = [0.0; 2];
             for d in 0..2 {
@@ -1613,13 +1607,7 @@ impl Mpm {
                 let u = &mut self.accel[node];
                 let v0 = [self.velocity_s[node], self.velocity_l[node]];
                 let into = self.fixities.contact[node];
-                let normal_axis = if into[0] != 0.0 {
-                    Some(0)
-                } else if into[1] != 0.0 {
-                    Some(1)
-                } else {
-                    None
-                };
+                let normal_axis = wall_normal_axis(into);
                 let mut reaction = [0.0; 2];
                 for d in 0..2 {
                     let mut f = [u.force[0][d] + fps[node][d], u.force[1][d] + fpl[node][d]];
@@ -1738,6 +1726,19 @@ impl Mpm {
 /// Smallest variance of the points' offsets (in elements²) along a
 /// direction that gets a pressure slope: a spread of a tenth of an element.
 const SPREAD: f64 = 0.01;
+
+/// The axis of a node's wall normal from its `Fixities::contact` vector
+/// (the unit vector into the wall): 0 for a side wall, 1 for the floor,
+/// None off the walls. The x component is read first.
+fn wall_normal_axis(into: [f64; 2]) -> Option<usize> {
+    if into[0] != 0.0 {
+        Some(0)
+    } else if into[1] != 0.0 {
+        Some(1)
+    } else {
+        None
+    }
+}
 
 /// The weighted least-squares plane p = p̄ + s·(ξ − ξ̄) of the moments `m`
 /// (`ElementScratch::pressure_moments`) at offset (a, b). The slope solves
