@@ -395,6 +395,11 @@ impl PressureProblem {
         force_s.fill([0.0; 2]);
         force_l.fill([0.0; 2]);
         for (e, &p) in pressure.iter().enumerate() {
+            // Most of the grid is empty or free (p = 0): adding their ±0
+            // leaves every sum as it is, so they are skipped.
+            if p == 0.0 {
+                continue;
+            }
             let (nodes, d) = self.divergence_coefficients(e);
             for c in 0..4 {
                 for k in 0..2 {
