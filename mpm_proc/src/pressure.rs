@@ -141,6 +141,19 @@ impl Mobility {
     }
 }
 
+/// Bulk modulus of a pore fluid of water (modulus `water`, Pa) and air at
+/// absolute pressure `air` (Pa) filling `saturation` S of the pores:
+/// 1/K = S/K_w + (1 − S)/p_air (the air isothermal, none dissolved;
+/// Verruijt, Soil Mechanics, Delft 2001, "compressibility of the pore
+/// fluid"). S ≥ 1 gives K_w. A little air dominates: S = 0.99 at 100 kPa
+/// makes water of 2e9 Pa 200× softer.
+pub fn pore_fluid_modulus(saturation: f64, water: f64, air: f64) -> f64 {
+    if saturation >= 1.0 {
+        return water;
+    }
+    1.0 / (saturation / water + (1.0 - saturation) / air)
+}
+
 /// What an element is in one step's pressure problem (design §1 step 2).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum ElementRole {
@@ -187,6 +200,8 @@ pub struct PressureProblem {
     dt: f64,
     /// K_L, Pa (∞ allowed: incompressible, C = 0).
     bulk_modulus: f64,
+    /// Per element, the pore fluid's bulk modulus, Pa (K_L but where set).
+    fluid_modulus: Vec<f64>,
     /// n_e and ∇n_e (1/m) at the centroid, from the corner nodes as in
     /// `porosity_fields`.
     porosity: Vec<f64>,
@@ -217,6 +232,7 @@ impl PressureProblem {
             row: grid.node_dims()[0],
             dt,
             bulk_modulus,
+            fluid_modulus: vec![bulk_modulus; ne],
             porosity: vec![1.0; ne],
             grad_porosity: vec![[0.0; 2]; ne],
             reference_pressure: vec![0.0; ne],
@@ -238,6 +254,7 @@ impl PressureProblem {
         assert!(dt > 0.0 && bulk_modulus > 0.0, "Δt = {dt} s and K_L = {bulk_modulus} Pa must be positive");
         self.dt = dt;
         self.bulk_modulus = bulk_modulus;
+        self.fluid_modulus.fill(bulk_modulus);
         self.porosity.fill(1.0);
         self.grad_porosity.fill([0.0; 2]);
         self.reference_pressure.fill(0.0);
@@ -329,10 +346,19 @@ impl PressureProblem {
         self.mobility[node][d]
     }
 
-    /// C_e = n_e A_e / (K_L Δt), m²/(Pa·s): the liquid's compressibility
-    /// over the step, backward Euler (design §1 step 4). 0 for K_L = ∞.
+    /// C_e = n_e A_e / (K_e Δt), m²/(Pa·s): the pore fluid's compressibility
+    /// over the step, backward Euler (design §1 step 4), K_e = K_L unless
+    /// set ([`Self::set_fluid_modulus`]). 0 for K_e = ∞.
     pub fn compressibility(&self, e: usize) -> f64 {
-        self.porosity[e] * self.grid.h * self.grid.h / (self.bulk_modulus * self.dt)
+        self.porosity[e] * self.grid.h * self.grid.h / (self.fluid_modulus[e] * self.dt)
+    }
+
+    /// The pore fluid of element `e` has bulk modulus `k` (Pa, > 0) instead
+    /// of K_L (`pore_fluid_modulus` for water with air). Call after
+    /// [`Self::set_element`], before the solve.
+    pub fn set_fluid_modulus(&mut self, e: usize, k: f64) {
+        debug_assert!(k > 0.0);
+        self.fluid_modulus[e] = k;
     }
 
     /// The four corner nodes of element `e` and the coefficients of its
@@ -740,6 +766,20 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Verruijt's example: water (2e9 Pa) with 1 % air at 100 kPa is 200×
+    /// softer, 1/(0.99/2e9 + 0.01/1e5) = 9.951e6 Pa; the lab's K_L = 2e7 at
+    /// S = 0.83 and one atmosphere: 5.82e5 Pa; saturated or over-full (a
+    /// point-count F_e above 1): the water's own.
+    #[test]
+    fn a_little_air_makes_the_pore_fluid_soft() {
+        let k = pore_fluid_modulus(0.99, 2e9, 1e5);
+        assert!((k / 9.95074e6 - 1.0).abs() < 1e-5, "{k}");
+        let k = pore_fluid_modulus(0.83, 2e7, 101_325.0);
+        assert!((k / 5.816e5 - 1.0).abs() < 1e-3, "{k}");
+        assert_eq!(pore_fluid_modulus(1.0, 2e7, 1e5), 2e7);
+        assert_eq!(pore_fluid_modulus(1.07, 2e7, 1e5), 2e7);
+    }
     use crate::grid::GHOST;
     use schemas::scene::ShapeFunctions;
 

@@ -68,6 +68,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         viscosity: mu,
         bulk_modulus: spec.liquid_bulk_modulus,
         cavitation: spec.cavitation_threshold,
+        air_pressure: spec.air_pressure,
         max_porosity: spec.max_porosity,
         damping: spec.damping,
         wall_friction: spec.wall_friction,

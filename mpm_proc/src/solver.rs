@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::drag::DragLaw;
 use crate::grid::{Grid, Stencil};
 use crate::mohr_coulomb::MohrCoulomb;
-use crate::pressure::{ElementRole, PressureProblem, PressureSolver};
+use crate::pressure::{pore_fluid_modulus, ElementRole, PressureProblem, PressureSolver};
 use schemas::scene::ShapeFunctions;
 
 /// Porosity bounds of the solid points: grains are incompressible, so n
@@ -35,6 +35,9 @@ pub struct Params {
     pub bulk_modulus: f64,
     /// Liquid tension tolerated, Pa (p ≥ −this).
     pub cavitation: f64,
+    /// Absolute pressure of the air in part-empty pressured elements, Pa
+    /// (`mpm.air_pressure`; implicit scheme only).
+    pub air_pressure: f64,
     /// Fluidisation porosity n_max.
     pub max_porosity: f64,
     /// Local damping α.
@@ -1487,7 +1490,12 @@ impl Mpm {
     /// mass gets its masked predictor mobility (masses, the drag Q of
     /// `solve_nodes`); every element with liquid its porosity field, p̄ and
     /// role: unknown where its filling ratio is at least
-    /// `free_surface_fill` (`ElementRole::classify`), p = 0 otherwise.
+    /// `free_surface_fill` (`ElementRole::classify`), p = 0 otherwise; an
+    /// unknown element filled below 1 holds water and air, with the pore
+    /// fluid's modulus of `pore_fluid_modulus` at the air's absolute
+    /// pressure `air_pressure` + p̄ (design note §7: without it, an element
+    /// switched from free to pressured while water still flowed in stopped
+    /// that flow in one step, the remaining pressure spikes).
     fn assemble_pressure_problem(&mut self) {
         let grid = self.grid;
         let Some(imp) = self.implicit.as_mut() else { return };
@@ -1517,6 +1525,11 @@ impl Mpm {
                 let [w, wp] = imp.reference[e];
                 let reference = if w > 0.0 { wp / w } else { 0.0 };
                 problem.set_element(e, el.porosity[e], el.grad_porosity[e], reference, role);
+                let saturation = el.filling_ratio(e, area);
+                if role == ElementRole::Unknown && saturation < 1.0 {
+                    let air = p.air_pressure + reference.max(0.0);
+                    problem.set_fluid_modulus(e, pore_fluid_modulus(saturation, p.bulk_modulus, air));
+                }
                 // Warm start from p̄ (not the last solution: a restart sees the same).
                 imp.pressure[e] = reference;
             }

@@ -406,6 +406,17 @@ pub struct MpmSpec {
     /// `pressure_reconstruction` is not used.
     #[serde(default)]
     pub pressure_scheme: MpmPressureScheme,
+    /// Under `pressure_scheme = "implicit"`: the absolute pressure of the
+    /// air in the pores, Pa. A pressured element that is part empty
+    /// (filling ratio S below 1) holds water and air, whose bulk modulus
+    /// is 1/K = S/K_L + (1 − S)/(p_air + p) (Verruijt, Soil Mechanics,
+    /// the compressibility of water with a little air): such an element
+    /// is ~30× softer than water at S = 0.83, so it fills without the
+    /// pressure pulse a switch from free to incompressible makes. Default
+    /// 101325 (the lab's atmosphere); a huge value gives every pressured
+    /// element K_L (the session-25 scheme).
+    #[serde(default = "default_mpm_air_pressure")]
+    pub air_pressure: f64,
     /// Under `transfer = "flip"`: share of the grid (PIC) velocity blended
     /// into each point's FLIP update, per step. Pure FLIP (0) keeps
     /// point-velocity components the grid cannot see: next to the rough
@@ -577,6 +588,9 @@ fn default_mpm_pic() -> f64 {
 }
 fn default_mpm_fill() -> f64 {
     0.8
+}
+fn default_mpm_air_pressure() -> f64 {
+    101_325.0
 }
 fn default_gravity_phase_time() -> f64 {
     0.2
@@ -1531,6 +1545,7 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
     v.positive("mpm.ergun_a", m.ergun_a);
     v.positive("mpm.ergun_b", m.ergun_b);
     v.half_open("mpm.free_surface_fill", m.free_surface_fill, 0.0, 1.0);
+    v.positive("mpm.air_pressure", m.air_pressure);
     v.in_range("mpm.pic_fraction", m.pic_fraction, 0.0, 1.0);
     if m.transfer.is_affine() && m.shape_functions == ShapeFunctions::Linear {
         // Measured: a block sliding on a frictional floor blew up once its

@@ -192,9 +192,9 @@ fn plan_materials(scene: &Scene, ts: &mpm::MpmTimeStep, p: &mut Plan) {
             m.cavitation_threshold,
             m.free_surface_fill,
             match (m.pressure_scheme, m.pressure_reconstruction) {
-                (MpmPressureScheme::Implicit, _) => "pore pressure semi-implicit, one per pressured element",
-                (_, MpmPressureReconstruction::Linear) => "pore pressure a least-squares plane per element",
-                (_, MpmPressureReconstruction::None) => "pore pressure per point",
+                (MpmPressureScheme::Implicit, _) => format!("pore pressure semi-implicit, one per pressured element; air in part-filled ones at {} Pa", m.air_pressure),
+                (_, MpmPressureReconstruction::Linear) => "pore pressure a least-squares plane per element".to_string(),
+                (_, MpmPressureReconstruction::None) => "pore pressure per point".to_string(),
             }
         ));
     }
