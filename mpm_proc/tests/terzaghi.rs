@@ -41,18 +41,23 @@ fn degree(tv: f64) -> f64 {
 }
 
 /// The column: `height` m of soil, element `h`, grain `grain` (sets κ).
-/// `scheme` is `mpm.pressure_scheme`, `courant` `mpm.courant`.
-#[allow(clippy::too_many_arguments)]
-fn scene(
+/// The column's settings: `height` m of soil on elements of `h` m, grain
+/// `grain` m (sets κ), `points` per element, `mpm.free_surface_fill`,
+/// `mpm.shape_functions`, `mpm.pressure_scheme`, `mpm.courant`.
+#[derive(Clone, Copy)]
+struct Column<'a> {
     height: f64,
     h: f64,
     grain: f64,
     points: u32,
     fill: f64,
-    shape: &str,
-    scheme: &str,
+    shape: &'a str,
+    scheme: &'a str,
     courant: f64,
-) -> schemas::Scene {
+}
+
+fn scene(c: &Column) -> schemas::Scene {
+    let Column { height, h, grain, points, fill, shape, scheme, courant } = *c;
     let mpm_lines = format!(
         "element_size = {h}\npoints_per_element = {points}\nshape_functions = \"{shape}\"\ninitial_stress = \"zero\"\ndamping = 0.0\ncohesion = 1.0e6\nquadratic_drag = false\ntop_load = {Q}\nfree_surface_fill = {fill}\ncavitation_threshold = 1.0e9\nyoung_modulus = {E}\npoisson_ratio = {NU}\nliquid_bulk_modulus = {K_L}\npressure_scheme = \"{scheme}\"\ncourant = {courant}\n"
     );
@@ -106,20 +111,11 @@ impl Run {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn run(
-    height: f64,
-    h: f64,
-    grain: f64,
-    points: u32,
-    fill: f64,
-    shape: &str,
-    scheme: &str,
-    courant: f64,
-    t_end_tv: f64,
-    t_end_waves: f64,
-) -> Run {
-    let sc = scene(height, h, grain, points, fill, shape, scheme, courant);
+/// Runs `c` to the later of `t_end_tv` (in T_v) and `t_end_waves` undrained
+/// wave transits of the column.
+fn run(c: &Column, t_end_tv: f64, t_end_waves: f64) -> Run {
+    let (height, scheme) = (c.height, c.scheme);
+    let sc = scene(c);
     let mut setup = build(&sc).unwrap();
     let mpm = &mut setup.mpm;
     for n in &setup.notes {
@@ -234,7 +230,8 @@ fn terzaghi_isochrones_under_the_implicit_pressure() {
 
 fn isochrones_and_degree(scheme: &str, courant: f64) {
     let (height, h) = (1.0, 0.025);
-    let r = run(height, h, 4.0e-4, 4, 0.8, "gimp", scheme, courant, 1.03, 0.0);
+    let column = Column { height, h, grain: 4.0e-4, points: 4, fill: 0.8, shape: "gimp", scheme, courant };
+    let r = run(&column, 1.03, 0.0);
     let u0 = u0();
     let mut worst_u: f64 = 0.0;
     let mut worst_p: f64 = 0.0;
@@ -293,7 +290,8 @@ fn undrained_pore_pressure_ratio_under_the_implicit_pressure() {
 
 fn undrained_ratio(scheme: &str) {
     let height = 1.0;
-    let r = run(height, 0.025, 5.0e-6, 4, 0.8, "gimp", scheme, 0.5, 0.0, 13.0);
+    let column = Column { height, h: 0.025, grain: 5.0e-6, points: 4, fill: 0.8, shape: "gimp", scheme, courant: 0.5 };
+    let r = run(&column, 0.0, 13.0);
     let u0 = u0();
     for k in [2.0, 4.0, 6.0, 8.0, 10.0] {
         let t = k * height / r.cu;
