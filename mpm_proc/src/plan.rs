@@ -71,6 +71,14 @@ pub struct MpmTimeStep {
     pub steps: u64,
 }
 
+impl MpmTimeStep {
+    /// The fastest wave the scene has, m/s, whether or not it limits the
+    /// step (under the implicit pore pressure the liquid's waves do not).
+    pub fn fastest_present(&self) -> f64 {
+        [self.undrained, self.liquid, self.dry].into_iter().flatten().fold(self.max_speed, f64::max)
+    }
+}
+
 /// The MPM background grid: square elements of side `h` from `origin`
 /// (domain.min in x and z), `nx` × `nz` of them.
 #[derive(Debug, Clone, Copy, PartialEq)]

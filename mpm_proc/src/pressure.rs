@@ -148,6 +148,7 @@ impl Mobility {
 /// fluid"). S ≥ 1 gives K_w. A little air dominates: S = 0.99 at 100 kPa
 /// makes water of 2e9 Pa 200× softer.
 pub fn pore_fluid_modulus(saturation: f64, water: f64, air: f64) -> f64 {
+    assert!(water > 0.0 && air > 0.0, "moduli must be positive: water {water} Pa, air {air} Pa");
     if saturation >= 1.0 {
         return water;
     }
@@ -767,6 +768,11 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 mod tests {
     use super::*;
 
+    use crate::grid::GHOST;
+    use schemas::scene::ShapeFunctions;
+
+    const G: f64 = 9.81;
+
     /// Verruijt's example: water (2e9 Pa) with 1 % air at 100 kPa is 200×
     /// softer, 1/(0.99/2e9 + 0.01/1e5) = 9.951e6 Pa; the lab's K_L = 2e7 at
     /// S = 0.83 and one atmosphere: 5.82e5 Pa; saturated or over-full (a
@@ -780,10 +786,6 @@ mod tests {
         assert_eq!(pore_fluid_modulus(1.0, 2e7, 1e5), 2e7);
         assert_eq!(pore_fluid_modulus(1.07, 2e7, 1e5), 2e7);
     }
-    use crate::grid::GHOST;
-    use schemas::scene::ShapeFunctions;
-
-    const G: f64 = 9.81;
 
     /// SplitMix64: reproducible uniform numbers without a dependency.
     struct Random(u64);

@@ -356,7 +356,7 @@ impl<'a> MpmRun<'a> {
             solid_mass0: mpm.state.solid.set.total_mass(),
             liquid_mass0: mpm.state.liquid.set.total_mass(),
             points: (mpm.state.solid.set.len() + mpm.state.liquid.set.len()) as f64,
-            speed_limit: 0.5 * scene.mpm_time_step().max_speed,
+            speed_limit: 0.5 * scene.mpm_time_step().fastest_present(),
             mid_width: (0.5 * (scene.spec.domain.min[1] + scene.spec.domain.max[1])) as f32,
             mpm,
             gates,

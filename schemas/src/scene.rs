@@ -409,12 +409,12 @@ pub struct MpmSpec {
     /// Under `pressure_scheme = "implicit"`: the absolute pressure of the
     /// air in the pores, Pa. A pressured element that is part empty
     /// (filling ratio S below 1) holds water and air, whose bulk modulus
-    /// is 1/K = S/K_L + (1 − S)/(p_air + p) (Verruijt, Soil Mechanics,
-    /// the compressibility of water with a little air): such an element
-    /// is ~30× softer than water at S = 0.83, so it fills without the
-    /// pressure pulse a switch from free to incompressible makes. Default
-    /// 101325 (the lab's atmosphere); a huge value gives every pressured
-    /// element K_L (the session-25 scheme).
+    /// is 1/K = S/K_L + (1 − S)/(p_air + max(p̄, 0)) (Verruijt, Soil
+    /// Mechanics, the compressibility of water with a little air): such an
+    /// element is ~34× softer than K_L = 2e7 Pa at S = 0.83, so it fills
+    /// without the pressure pulse a switch from free to incompressible
+    /// makes. Default 101325 (the lab's atmosphere); a huge value gives
+    /// K_L/S, the water's own compressibility over the water present.
     #[serde(default = "default_mpm_air_pressure")]
     pub air_pressure: f64,
     /// Under `transfer = "flip"`: share of the grid (PIC) velocity blended
