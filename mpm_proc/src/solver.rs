@@ -584,18 +584,15 @@ impl Mpm {
     /// acts on). Under APIC it can exceed ½ Σ m v², which leaves out the
     /// points' affine part.
     pub fn grid_kinetic_energy(&self) -> (f64, f64) {
-        let row = self.grid.node_dims()[0];
         let tol = self.mass_tolerance;
         let (mut solid, mut liquid) = (0.0, 0.0);
-        for r in self.rows.0..=self.rows.1 {
-            for c in self.columns.0..=self.columns.1 {
-                let Some(s) = self.sums.get(r * row + c) else { continue };
-                if s.mass_s > tol {
-                    solid += 0.5 * (s.momentum_s[0].powi(2) + s.momentum_s[1].powi(2)) / s.mass_s;
-                }
-                if s.mass_l > tol {
-                    liquid += 0.5 * (s.momentum_l[0].powi(2) + s.momentum_l[1].powi(2)) / s.mass_l;
-                }
+        for node in self.active_nodes() {
+            let Some(s) = self.sums.get(node) else { continue };
+            if s.mass_s > tol {
+                solid += 0.5 * (s.momentum_s[0].powi(2) + s.momentum_s[1].powi(2)) / s.mass_s;
+            }
+            if s.mass_l > tol {
+                liquid += 0.5 * (s.momentum_l[0].powi(2) + s.momentum_l[1].powi(2)) / s.mass_l;
             }
         }
         (solid, liquid)
@@ -721,6 +718,14 @@ impl Mpm {
                 }
             }
         }
+    }
+
+    /// The stored nodes of the touched range (`rows` × `columns`), row by
+    /// row: the serial counterpart of [`Self::for_active_nodes`].
+    fn active_nodes(&self) -> impl Iterator<Item = usize> + use<> {
+        let row = self.grid.node_dims()[0];
+        let ((r0, r1), (c0, c1)) = (self.rows, self.columns);
+        (r0..=r1).flat_map(move |r| (c0..=c1).map(move |c| r * row + c))
     }
 
     /// Runs `f(node)` over the touched node range in parallel, writing `out[node]`.
@@ -1498,22 +1503,19 @@ impl Mpm {
     /// that flow in one step, the remaining pressure spikes).
     fn assemble_pressure_problem(&mut self) {
         let grid = self.grid;
+        let (nx, area, tol) = (grid.elements[0], grid.h * grid.h, self.mass_tolerance);
+        let nodes = self.active_nodes();
         let Some(imp) = self.implicit.as_mut() else { return };
         let p = &self.params;
-        let (row, nx, area, tol) = (grid.node_dims()[0], grid.elements[0], grid.h * grid.h, self.mass_tolerance);
         let problem = &mut imp.problem;
         problem.reset(p.dt, p.bulk_modulus);
-        let (r0, r1) = self.rows;
-        let (c0, c1) = self.columns;
-        for r in r0..=r1 {
-            for c in c0..=c1 {
-                let node = r * row + c;
-                let s = &self.sums[node];
-                if s.mass_s > tol || s.mass_l > tol {
-                    problem.set_node(node, [s.mass_s, s.mass_l], self.accel[node].drag, self.mask[node], tol);
-                }
+        for node in nodes {
+            let s = &self.sums[node];
+            if s.mass_s > tol || s.mass_l > tol {
+                problem.set_node(node, [s.mass_s, s.mass_l], self.accel[node].drag, self.mask[node], tol);
             }
         }
+        let ((r0, r1), (c0, c1)) = (self.rows, self.columns);
         let el = &self.elements;
         for r in r0.max(1)..r1.min(grid.elements[1] + 1) {
             for col in c0.max(1)..c1.min(nx + 1) {
@@ -1541,28 +1543,23 @@ impl Mpm {
     /// components and for a phase without mass; the solid's = the liquid's
     /// where there is no solid), then S p = C p̄ − D v* by Jacobi-PCG.
     fn solve_pressure(&mut self) {
-        let row = self.grid.node_dims()[0];
+        let nodes = self.active_nodes();
         let Some(imp) = self.implicit.as_mut() else { return };
         let (dt, tol) = (self.params.dt, self.mass_tolerance);
         let [vs, vl] = &mut imp.velocity;
         vs.fill([0.0; 2]);
         vl.fill([0.0; 2]);
-        let (r0, r1) = self.rows;
-        let (c0, c1) = self.columns;
-        for r in r0..=r1 {
-            for c in c0..=c1 {
-                let node = r * row + c;
-                let (s, a, mask) = (&self.sums[node], &self.accel[node].a, self.mask[node]);
-                for d in 0..2 {
-                    if mask[d] == 0.0 {
-                        continue;
-                    }
-                    if s.mass_s > tol {
-                        vs[node][d] = self.velocity_s[node][d] + dt * a[0][d];
-                    }
-                    if s.mass_l > tol {
-                        vl[node][d] = self.velocity_l[node][d] + dt * a[1][d];
-                    }
+        for node in nodes {
+            let (s, a, mask) = (&self.sums[node], &self.accel[node].a, self.mask[node]);
+            for d in 0..2 {
+                if mask[d] == 0.0 {
+                    continue;
+                }
+                if s.mass_s > tol {
+                    vs[node][d] = self.velocity_s[node][d] + dt * a[0][d];
+                }
+                if s.mass_l > tol {
+                    vl[node][d] = self.velocity_l[node][d] + dt * a[1][d];
                 }
             }
         }
@@ -1599,7 +1596,7 @@ impl Mpm {
     /// Fixed components keep the predictor's (they stop the mapped velocity).
     /// At a node without solid the whole column's force is the liquid's.
     fn correct_velocities(&mut self) {
-        let row = self.grid.node_dims()[0];
+        let nodes = self.active_nodes();
         let Some(imp) = self.implicit.as_mut() else { return };
         let p = &self.params;
         let (dt, alpha, mu, tol) = (p.dt, p.damping, p.wall_friction, self.mass_tolerance);
@@ -1607,45 +1604,40 @@ impl Mpm {
         imp.solver.correct(&imp.problem, &imp.pressure, vs, vl);
         let [fps, fpl] = &mut imp.pressure_force;
         imp.problem.pressure_forces(&imp.pressure, fps, fpl);
-        let (r0, r1) = self.rows;
-        let (c0, c1) = self.columns;
-        for r in r0..=r1 {
-            for c in c0..=c1 {
-                let node = r * row + c;
-                let s = &self.sums[node];
-                let (has_s, has_l) = (s.mass_s > tol, s.mass_l > tol);
-                if !has_s && !has_l {
+        for node in nodes {
+            let s = &self.sums[node];
+            let (has_s, has_l) = (s.mass_s > tol, s.mass_l > tol);
+            if !has_s && !has_l {
+                continue;
+            }
+            let u = &mut self.accel[node];
+            let v0 = [self.velocity_s[node], self.velocity_l[node]];
+            let into = self.fixities.contact[node];
+            let normal_axis = wall_normal_axis(into);
+            let mut reaction = [0.0; 2];
+            for d in 0..2 {
+                let mut f = [u.force[0][d] + fps[node][d], u.force[1][d] + fpl[node][d]];
+                if !has_s {
+                    f = [0.0, f[0] + f[1]];
+                }
+                if self.mask[node][d] == 0.0 {
+                    if normal_axis == Some(d) && mu > 0.0 {
+                        reaction = Self::wall_reaction(s, d, f, u.drag, into[d], dt, tol);
+                    }
                     continue;
                 }
-                let u = &mut self.accel[node];
-                let v0 = [self.velocity_s[node], self.velocity_l[node]];
-                let into = self.fixities.contact[node];
-                let normal_axis = wall_normal_axis(into);
-                let mut reaction = [0.0; 2];
-                for d in 0..2 {
-                    let mut f = [u.force[0][d] + fps[node][d], u.force[1][d] + fpl[node][d]];
-                    if !has_s {
-                        f = [0.0, f[0] + f[1]];
-                    }
-                    if self.mask[node][d] == 0.0 {
-                        if normal_axis == Some(d) && mu > 0.0 {
-                            reaction = Self::wall_reaction(s, d, f, u.drag, into[d], dt, tol);
-                        }
-                        continue;
-                    }
-                    let mut v = [vs[node][d], vl[node][d]];
-                    if alpha > 0.0 {
-                        let damp = |f: f64, v: f64| if v != 0.0 { alpha * f.abs() * v.signum() } else { 0.0 };
-                        let damping = [damp(f[0], v0[0][d]), damp(f[1], v0[1][d])];
-                        let dv = imp.problem.mobility(node, d).apply(damping);
-                        v = [v[0] - dt * dv[0], v[1] - dt * dv[1]];
-                    }
-                    u.a[0][d] = if has_s { (v[0] - v0[0][d]) / dt } else { 0.0 };
-                    u.a[1][d] = if has_l { (v[1] - v0[1][d]) / dt } else { 0.0 };
+                let mut v = [vs[node][d], vl[node][d]];
+                if alpha > 0.0 {
+                    let damp = |f: f64, v: f64| if v != 0.0 { alpha * f.abs() * v.signum() } else { 0.0 };
+                    let damping = [damp(f[0], v0[0][d]), damp(f[1], v0[1][d])];
+                    let dv = imp.problem.mobility(node, d).apply(damping);
+                    v = [v[0] - dt * dv[0], v[1] - dt * dv[1]];
                 }
-                if normal_axis.is_some() {
-                    u.wall_load = Self::grains_wall_load(s, self.solid_fraction[node], reaction, tol);
-                }
+                u.a[0][d] = if has_s { (v[0] - v0[0][d]) / dt } else { 0.0 };
+                u.a[1][d] = if has_l { (v[1] - v0[1][d]) / dt } else { 0.0 };
+            }
+            if normal_axis.is_some() {
+                u.wall_load = Self::grains_wall_load(s, self.solid_fraction[node], reaction, tol);
             }
         }
     }

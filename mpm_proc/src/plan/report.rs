@@ -112,10 +112,9 @@ fn plan_waves_and_cost(scene: &Scene, ts: &mpm::MpmTimeStep, points: usize, p: &
             speed(ts.dry),
             ts.max_speed,
             ts.limiting.name(),
-            if m.pressure_scheme == schemas::scene::MpmPressureScheme::Implicit
-                && ts.dry.is_some()
-                && ts.liquid.is_some()
-            {
+            // Only the implicit scheme lets the dry wave limit a scene with
+            // liquid (c_u > c_d whenever both exist).
+            if ts.limiting == mpm::Wave::Dry && ts.liquid.is_some() {
                 ": the pore pressure is implicit, so the liquid's waves do not limit it"
             } else {
                 ""
