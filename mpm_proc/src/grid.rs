@@ -64,6 +64,26 @@ impl Grid {
         (k + GHOST) * self.node_dims()[0] + i + GHOST
     }
 
+    /// How the square domain of a point at `x` with half-widths `half`
+    /// (m, each below h/2) lies over the elements, per axis: the two element
+    /// columns (rows) it can touch and the share of its width in each.
+    /// Continuous in `x`, unlike [`Self::element_of`]; a share that would
+    /// fall outside the box stays in the element at its edge, so the shares
+    /// always sum to 1.
+    pub fn domain_overlap(&self, x: [f64; 2], half: [f64; 2]) -> [([usize; 2], [f64; 2]); 2] {
+        let axis = |x: f64, x0: f64, l: f64, n: usize| {
+            let cell = |y: f64| (((y - x0) / self.h).max(0.0) as usize).min(n - 1);
+            let (lo, hi) = (cell(x - l), cell(x + l));
+            if lo == hi {
+                return ([lo, lo], [1.0, 0.0]);
+            }
+            let boundary = x0 + hi as f64 * self.h;
+            let share_lo = ((boundary - (x - l)) / (2.0 * l)).clamp(0.0, 1.0);
+            ([lo, hi], [share_lo, 1.0 - share_lo])
+        };
+        [axis(x[0], self.origin[0], half[0], self.elements[0]), axis(x[1], self.origin[1], half[1], self.elements[1])]
+    }
+
     /// The GIMP constants along x and z of a point set with half-widths
     /// `half`, m: computed once per set and step, not per point.
     pub fn shape_constants(&self, half: [f64; 2]) -> [GimpConstants; 2] {
@@ -211,6 +231,38 @@ mod tests {
 
     fn grid(shape: ShapeFunctions) -> Grid {
         Grid { origin: [0.0, 0.0], h: 0.01, elements: [10, 6], shape }
+    }
+
+    /// A point's domain lies over at most two elements per axis in
+    /// shares that sum to 1, move continuously as it crosses an element
+    /// edge (half in each when centred on it) and stay in the box at its
+    /// walls; the shares are the overlap lengths.
+    #[test]
+    fn domain_shares_are_the_overlap_and_continuous() {
+        let g = grid(ShapeFunctions::Gimp);
+        let half = [0.00125, 0.0016];
+        for s in 0..500 {
+            let x = [0.1 * (s as f64 * 0.618).fract(), 0.06 * (s as f64 * 0.414).fract()];
+            for (axis, (cells, shares)) in g.domain_overlap(x, half).into_iter().enumerate() {
+                assert!((shares[0] + shares[1] - 1.0).abs() < 1e-14 && shares.iter().all(|&f| f >= 0.0));
+                if shares[1] > 0.0 {
+                    assert_eq!(cells[1], cells[0] + 1);
+                    let edge = cells[1] as f64 * g.h;
+                    let overlap_lo = (edge - (x[axis] - half[axis])) / (2.0 * half[axis]);
+                    assert!((shares[0] - overlap_lo).abs() < 1e-12, "{x:?} axis {axis}");
+                }
+            }
+        }
+        // Centred on the edge between columns 3 and 4: half each; an
+        // ulp either side changes nothing measurable.
+        for x in [0.04 - 1e-12, 0.04, 0.04 + 1e-12] {
+            let (cells, shares) = g.domain_overlap([x, 0.03], half)[0];
+            assert_eq!(cells, [3, 4]);
+            assert!((shares[0] - 0.5).abs() < 1e-8, "{shares:?}");
+        }
+        // At the floor and the far wall the share outside stays inside.
+        assert_eq!(g.domain_overlap([0.05, 0.0005], half)[1], ([0, 0], [1.0, 0.0]));
+        assert_eq!(g.domain_overlap([0.0995, 0.03], half)[0], ([9, 9], [1.0, 0.0]));
     }
 
     #[test]

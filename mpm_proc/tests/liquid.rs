@@ -137,8 +137,15 @@ fn cavitating_water_holds_no_more_tension_than_its_threshold() {
     }
 }
 
+/// Under both pore-pressure schemes; the settlement to 1 % under the
+/// explicit one only (below).
 #[test]
 fn a_soft_column_settles_by_its_weight_and_its_volume_follows_its_density() {
+    soft_column("explicit");
+    soft_column("implicit");
+}
+
+fn soft_column(scheme: &str) {
     // K = 1e5 Pa: the base strain ρ g H0/K is 0.59 %, the top settles by
     // 0.18 mm, 4.4 % of an element (much softer and the top element, a
     // free surface's, flickers across the filling-ratio threshold as it
@@ -146,7 +153,7 @@ fn a_soft_column_settles_by_its_weight_and_its_volume_follows_its_density() {
     // at height z0 carries the weight above it, p = ρ g (H0 − z0), and has
     // settled by the compression below it, ρ g (H0 z0 − z0²/2)/K.
     let k = 1.0e5;
-    let mut m = water_column(&format!("liquid_bulk_modulus = {k:e}\ndamping = 0.7"));
+    let mut m = water_column(&format!("liquid_bulk_modulus = {k:e}\ndamping = 0.7\npressure_scheme = \"{scheme}\""));
     let z0: Vec<f64> = m.state.liquid.set.x.iter().map(|x| x[1]).collect();
     let steps = (0.6 / m.params.dt) as usize;
     for _ in 0..steps {
@@ -172,14 +179,18 @@ fn a_soft_column_settles_by_its_weight_and_its_volume_follows_its_density() {
         }
     }
     eprintln!(
-        "soft column: row pressure vs weight above {ep:.5}, settlement {es:.4} of {:.3} mm",
+        "soft column, {scheme}: row pressure vs weight above {ep:.5}, settlement {es:.4} of {:.3} mm",
         settled(H0 - h) * 1e3
     );
     // Force balance with the mass conserved: 0.5 % of ρ g H0.
-    assert!(ep < 0.005, "pressure off the weight above by {ep}");
+    assert!(ep < 0.005, "{scheme}: pressure off the weight above by {ep}");
     // The incremental law sums log strains (p = −K ln(V/V0)), the closed
-    // form is linear: 1 % of the settlement at a 0.6 % strain.
-    assert!(es < 0.01, "settlement off by {es}");
+    // form is linear: 1 % of the settlement at a 0.6 % strain. Under the
+    // implicit scheme an element's points share its centroid's pressure,
+    // each point's volume follows that one pressure, and the settlement
+    // profile is the element-wise one (measured 1.2 %): 2 %.
+    let bar = if scheme == "explicit" { 0.01 } else { 0.02 };
+    assert!(es < bar, "{scheme}: settlement off by {es}");
     // The volume rule V = m/(n ρ_L(p)), ρ_L(p) = ρ_L (1 + p/K): the water
     // first below z_c claims the area it now fills, L0 (z_c − settled(z_c)),
     // to 2e-4: a twentieth of the compression (4.3e-3), which a volume
@@ -187,6 +198,6 @@ fn a_soft_column_settles_by_its_weight_and_its_volume_follows_its_density() {
     let zc = 0.032;
     let claimed: f64 = (0..l.set.len()).filter(|&p| z0[p] < zc).map(|p| l.set.volume[p]).sum();
     let filled = L0 * (zc - settled(zc));
-    eprintln!("claimed area {claimed:.6e} vs filled {filled:.6e} (uncompressed {:.6e})", L0 * zc);
-    assert!((claimed - filled).abs() < 2e-4 * filled, "claimed {claimed} vs {filled}");
+    eprintln!("{scheme}: claimed area {claimed:.6e} vs filled {filled:.6e} (uncompressed {:.6e})", L0 * zc);
+    assert!((claimed - filled).abs() < 2e-4 * filled, "{scheme}: claimed {claimed} vs {filled}");
 }

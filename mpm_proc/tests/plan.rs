@@ -55,7 +55,9 @@ fn every_mpm_scene_has_a_time_step() {
 
 /// The DEM–LBM column run as MPM: default 4 mm grid, 175 x 30 elements;
 /// n0 = 0.42 from the DEM target porosity; Δt = 0.5 (default courant) ·
-/// 0.004 / c_u with c_u = 178.0 m/s at n0 = 0.42.
+/// 0.004 / c_d with c_d = 94.48 m/s, the dry P-wave at n0 = 0.42, which
+/// limits the step under the default implicit pore pressure (c_u = 178.0
+/// m/s would under the explicit one).
 #[test]
 fn saturated_column_runs_as_mpm() {
     let path = scenes().join("ceccato2020/sat_h060.toml");
@@ -63,5 +65,6 @@ fn saturated_column_runs_as_mpm() {
     assert_eq!((s.mpm_grid().nx, s.mpm_grid().nz), (175, 30));
     assert_eq!(s.mpm_porosity(), Some(0.42));
     let t = s.mpm_time_step();
-    assert!((t.dt - 1.1237e-5).abs() < 1e-8, "{t:?}");
+    assert!((t.dt - 2.1168e-5).abs() < 1e-8, "{t:?}");
+    assert!((t.undrained.unwrap() - 178.0).abs() < 0.01, "{t:?}");
 }

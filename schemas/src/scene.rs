@@ -397,12 +397,15 @@ pub struct MpmSpec {
     /// or `none`, each point's own history (docs/mpm.md, "Pore pressure").
     #[serde(default)]
     pub pressure_reconstruction: MpmPressureReconstruction,
-    /// How the pore pressure enters the momentum balance: `explicit`
-    /// (default), each liquid point's weakly compressible law updated from
-    /// the element's strain after the step; or `implicit`, one pressure per
-    /// pressured element solved each step from the mixture continuity with
-    /// the drag inside the mobility (docs/design/mpm-implicit-pressure.md),
-    /// the liquid points taking their element's pressure. Under `implicit`,
+    /// How the pore pressure enters the momentum balance: `implicit`
+    /// (default since session 27), one pressure per pressured element
+    /// solved each step from the mixture continuity with the drag inside
+    /// the mobility (docs/design/mpm-implicit-pressure.md), the liquid
+    /// points taking their element's pressure, the step limited by the
+    /// skeleton's wave alone; or `explicit`, each liquid point's weakly
+    /// compressible law updated from the element's strain after the step
+    /// (the paper's and Anura3D's scheme; it leaves isolated pressure
+    /// spikes, docs/mpm.md "Pore pressure"). Under `implicit`,
     /// `pressure_reconstruction` is not used.
     #[serde(default)]
     pub pressure_scheme: MpmPressureScheme,
@@ -667,9 +670,9 @@ pub const DEFAULT_FLIP_SHARE: f64 = 0.9;
 #[serde(rename_all = "snake_case")]
 pub enum MpmPressureScheme {
     /// Weakly compressible, per liquid point, from the last step's strain.
-    #[default]
     Explicit,
     /// Semi-implicit: one SPD system per step for the element pressures.
+    #[default]
     Implicit,
 }
 
