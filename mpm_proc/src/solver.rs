@@ -72,7 +72,8 @@ pub struct Params {
     /// docs/design/mpm-implicit-pressure.md §1): the nodal solve without
     /// the pore pressure, one pressure per pressured element from the
     /// mixture continuity, then damping and wall friction on the total
-    /// force. false: the explicit per-point law.
+    /// force. false: the explicit per-point law, and always without
+    /// liquid points (`setup::build`).
     pub implicit_pressure: bool,
     pub soil: MohrCoulomb,
     pub drag: DragLaw,
