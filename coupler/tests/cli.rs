@@ -117,9 +117,10 @@ fn inspect_rejects_a_file_that_is_not_mcap() {
 }
 
 /// `--method mpm` runs the DEM-LBM column as an MPM scene: default [mpm]
-/// (4 mm, 12 points, courant 0.5), n0 = 0.42 from the scene, so
-/// c_u = sqrt((1.346e7 + 2e7/0.42)/1928) = 178.0 m/s and
-/// dt = 0.5 x 0.004 / 178.0 = 1.124e-5 s.
+/// (4 mm, 12 points, courant 0.5, implicit pore pressure), n0 = 0.42 from
+/// the scene, so the skeleton's wave c_d = sqrt(1.346e7/(0.58 x 2600))
+/// = 94.5 m/s limits the step, dt = 0.5 x 0.004 / 94.5 = 2.117e-5 s
+/// (the undrained c_u = 178.0 m/s would under the explicit scheme).
 #[test]
 fn check_method_mpm_prints_the_mpm_time_step() {
     let out = coupler().args(["check", "--method", "mpm", "scenes/ceccato2020/sat_h060.toml"]).output().unwrap();
@@ -127,7 +128,7 @@ fn check_method_mpm_prints_the_mpm_time_step() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("mpm (mpm_proc, two-phase double-point MPM"), "{text}");
     assert!(text.contains("175 x 30 = 5250 elements"), "{text}");
-    assert!(text.contains("dt 1.124e-5 s = courant 0.5 x 0.004 m / 178.0 m/s (undrained P-wave limits)"), "{text}");
+    assert!(text.contains("dt 2.117e-5 s = courant 0.5 x 0.004 m / 94.5 m/s (dry P-wave limits)"), "{text}");
     // 10 x 15 soil elements x 12 points, saturated throughout.
     assert!(text.contains("150 elements, 1800 solid points (150 saturated elements, 0 dry)"), "{text}");
     assert!(!text.contains("grains ") && !text.contains("lattice "), "no DEM or LBM block under mpm: {text}");
@@ -147,7 +148,8 @@ fn check_reports_the_mpm_column() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("undrained P 179.9 m/s, liquid 141.4 m/s, dry P 92.9 m/s"), "{text}");
-    assert!(text.contains("dt 1.111e-5 s"), "{text}");
+    // The implicit pore pressure (the default): the dry P-wave limits.
+    assert!(text.contains("dt 2.153e-5 s = courant 0.5 x 0.004 m / 92.9 m/s (dry P-wave limits)"), "{text}");
     assert!(text.contains("E_oed 1.3462e7 Pa, K0 = nu/(1-nu) = 0.429"), "{text}");
     // analytic-checks.md: kappa = 7.41e-9 m², K = 0.0727 m/s; Re_p = 1918.
     assert!(text.contains("kappa(n0) 7.407e-9 m²") && text.contains("conductivity 7.267e-2 m/s"), "{text}");

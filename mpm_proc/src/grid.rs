@@ -65,21 +65,23 @@ impl Grid {
     }
 
     /// How the square domain of a point at `x` with half-widths `half`
-    /// (m, each below h/2) lies over the elements, per axis: the two element
-    /// columns (rows) it can touch and the share of its width in each.
-    /// Continuous in `x`, unlike [`Self::element_of`]; a share that would
-    /// fall outside the box stays in the element at its edge, so the shares
-    /// always sum to 1.
+    /// (m, each at most h/2) lies over the elements, per axis: the two
+    /// element columns (rows) it can touch and the share of its width in
+    /// each. Continuous in `x`, unlike [`Self::element_of`]; a share that
+    /// would fall outside the box stays in the element at its edge, so the
+    /// shares always sum to 1.
     pub fn domain_overlap(&self, x: [f64; 2], half: [f64; 2]) -> [([usize; 2], [f64; 2]); 2] {
         let axis = |x: f64, x0: f64, l: f64, n: usize| {
-            let cell = |y: f64| (((y - x0) / self.h).max(0.0) as usize).min(n - 1);
-            let (lo, hi) = (cell(x - l), cell(x + l));
-            if lo == hi {
+            // The element of the domain's lower end and the edge above it;
+            // the upper end is not located on its own: at l = h/2 both ends
+            // can round onto neighbouring edges and skip an element.
+            let lo = ((((x - l) - x0) / self.h).max(0.0) as usize).min(n - 1);
+            let edge = x0 + (lo + 1) as f64 * self.h;
+            if lo + 1 >= n || x + l <= edge {
                 return ([lo, lo], [1.0, 0.0]);
             }
-            let boundary = x0 + hi as f64 * self.h;
-            let share_lo = ((boundary - (x - l)) / (2.0 * l)).clamp(0.0, 1.0);
-            ([lo, hi], [share_lo, 1.0 - share_lo])
+            let share_lo = ((edge - (x - l)) / (2.0 * l)).clamp(0.0, 1.0);
+            ([lo, lo + 1], [share_lo, 1.0 - share_lo])
         };
         [axis(x[0], self.origin[0], half[0], self.elements[0]), axis(x[1], self.origin[1], half[1], self.elements[1])]
     }
@@ -259,6 +261,25 @@ mod tests {
             let (cells, shares) = g.domain_overlap([x, 0.03], half)[0];
             assert_eq!(cells, [3, 4]);
             assert!((shares[0] - 0.5).abs() < 1e-8, "{shares:?}");
+        }
+        // A domain as tall as an element (3 points per element: a 3 × 1
+        // sub-grid, half-width h/2) seeded at an element's centre lies in
+        // that element, every row, on the lab grids (h = 4 mm, 1/300 m)
+        // where the ends round onto neighbouring edges.
+        for h in [0.004, 1.0 / 300.0] {
+            let g = Grid { origin: [0.0, 0.0], h, elements: [10, 40], shape: ShapeFunctions::Gimp };
+            for k in 0..40 {
+                let z = (k as f64 + 0.5) * h;
+                let (cells, shares) = g.domain_overlap([0.05, z], [h / 6.0, h / 2.0])[1];
+                let own = if cells[0] == k {
+                    shares[0]
+                } else if cells[1] == k {
+                    shares[1]
+                } else {
+                    0.0
+                };
+                assert!(own >= 1.0 - 1e-12, "h {h}, row {k}: {cells:?} {shares:?}");
+            }
         }
         // At the floor and the far wall the share outside stays inside.
         assert_eq!(g.domain_overlap([0.05, 0.0005], half)[1], ([0, 0], [1.0, 0.0]));

@@ -105,8 +105,9 @@ fn water_hammer_follows_joukowsky() {
         );
         // The plateau behind the front: 2 % (the points within h/2 of the
         // plane average over the front's first element; measured 0.05 %
-        // explicit under APIC, 0.4 % under AFLIP; 1.6 % implicit, whose
-        // backward-Euler step at c Δt/h = 0.5 smears the front).
+        // explicit under APIC (0.4 % explicit under AFLIP, session 18, no
+        // longer run); 1.6 % implicit under both, whose backward-Euler
+        // step at c Δt/h = 0.5 smears the front).
         assert!(
             (plane + joukowsky).abs() < 0.02 * joukowsky,
             "{transfer} {scheme}: mid-plane pressure {plane} vs {}",

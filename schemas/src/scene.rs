@@ -382,9 +382,11 @@ pub struct MpmSpec {
     /// Keep the quadratic (Forchheimer) drag term f2 of Eq. 7. Default true.
     #[serde(default = "default_true")]
     pub quadratic_drag: bool,
-    /// A liquid point is on the free surface, with zero pore pressure, when
-    /// its interpolated (nodal) filling ratio is below this, or its
-    /// element's: the water over the space the element's grains leave
+    /// An element is pressured when its filling ratio (the water over the
+    /// space its grains leave, each point counted by the share of its
+    /// domain inside it) is at least this, else its liquid points are on
+    /// the free surface with zero pore pressure; the explicit scheme also
+    /// frees a point whose interpolated (nodal) filling ratio is below it
     /// (docs/mpm.md, "Pore pressure"). Default 0.8.
     #[serde(default = "default_mpm_fill")]
     pub free_surface_fill: f64,
@@ -405,7 +407,9 @@ pub struct MpmSpec {
     /// skeleton's wave alone; or `explicit`, each liquid point's weakly
     /// compressible law updated from the element's strain after the step
     /// (the paper's and Anura3D's scheme; it leaves isolated pressure
-    /// spikes, docs/mpm.md "Pore pressure"). Under `implicit`,
+    /// spikes, docs/mpm.md "Pore pressure"; with the element fill by the
+    /// points' domains since session 27, so not bit for bit the earlier
+    /// default). Under `implicit`,
     /// `pressure_reconstruction` is not used.
     #[serde(default)]
     pub pressure_scheme: MpmPressureScheme,

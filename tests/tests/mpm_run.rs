@@ -273,11 +273,12 @@ fn dense_frames_of_the_flowing_column_show_no_pore_pressure_pulse() {
     // catch (an element switched into the pressure solve with water still
     // flowing in as its fill crossed free_surface_fill): the H0 = 0.03 m
     // column, where they were worst, recorded every 1e-4 s (~5 steps)
-    // through its collapse to 0.3 s (3.8 t_ref). Under the explicit scheme
-    // 34 of 2 946 frames were above the bar (worst 4.1); the implicit one
-    // with the fill counted by point whole 4 (worst 1.33); with each
-    // point's domain shared among the elements (session 27) none, worst
-    // 0.32 (docs/mpm.md, "Pore pressure"). The bar is the issue's.
+    // through its collapse to 0.3 s (4.3 t_ref). Under the explicit scheme
+    // with the fill counted by point 34 of 2 946 frames were above the bar
+    // (worst 3.9; 13 with the domain fill, worst 4.1); the implicit one
+    // with the fill counted by point 4 (worst 1.33); with each point's
+    // domain shared among the elements (session 27) none, worst 0.32
+    // (docs/mpm.md, "Pore pressure"). The bar is the issue's.
     let run = coupler_run(
         "mpm_sat_h030_dense",
         "scenes/ceccato2020/mpm_sat_h030.toml",
