@@ -1551,11 +1551,11 @@ impl Mpm {
                 if el.liquid_points[e] == 0 {
                     continue;
                 }
-                let role = ElementRole::classify(true, el.filling_ratio(e, area), p.free_surface_fill);
+                let saturation = el.filling_ratio(e, area);
+                let role = ElementRole::classify(true, saturation, p.free_surface_fill);
                 let [w, wp] = imp.reference[e];
                 let reference = if w > 0.0 { wp / w } else { 0.0 };
                 problem.set_element(e, el.porosity[e], el.grad_porosity[e], reference, role);
-                let saturation = el.filling_ratio(e, area);
                 if role == ElementRole::Unknown && saturation < 1.0 {
                     let air = p.air_pressure + reference.max(0.0);
                     problem.set_fluid_modulus(e, pore_fluid_modulus(saturation, p.bulk_modulus, air));
