@@ -50,11 +50,13 @@ mod free_surface;
 #[cfg(test)]
 mod isa_tests;
 mod kernel;
+mod stored;
 #[cfg(test)]
 mod tests;
 
 pub use forcing::{forcing_gain, uses_effective_tau, AppliedForce, ForcedCell, ForcingMemory};
 pub use free_surface::{InterfaceCell, Sample};
+pub(crate) use stored::DenseV1;
 use kernel::*;
 
 /// Cell flags. Liquid cells (fluid, interface) have bit 0 clear, so the
@@ -200,7 +202,8 @@ pub enum ConfigError {
 }
 
 /// Everything needed to continue a run exactly (with [`FluidParams`]).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// Serialised in the stored form of [`stored`]: the liquid cells only.
+#[derive(Debug, Clone, PartialEq)]
 pub struct FluidState<T> {
     /// Cells along x, y, z.
     pub dims: [usize; 3],

@@ -30,13 +30,15 @@ use crate::real::Real;
 use crate::setup::{LbmSetup, SetupError};
 use crate::watchdog::Instability;
 
-/// Version of the `/lbm/state` bincode layout.
-pub const STATE_VERSION: u32 = 1;
+/// Version of the `/lbm/state` bincode layout: 2 stores the liquid cells
+/// only (`fluid/stored.rs`); version 1 (every cell) is still read.
+pub const STATE_VERSION: u32 = 2;
 
 /// Full state, enough to continue a fluid-only run bit for bit
 /// (`/lbm/state`); a coupled run's checkpoint adds the forcing memory.
 /// `T` is the populations' storage (`lbm.precision`).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(bound(serialize = "T: Real", deserialize = "T: Real"))]
 pub struct LbmState<T = f32> {
     pub version: u32,
     /// Simulated time since the start of the run, s.
@@ -61,9 +63,28 @@ impl<T: Real> LbmState<T> {
         bincode::serde::encode_to_vec(self, bincode::config::standard()).expect("state encodes")
     }
 
-    /// Decodes a state whose populations are stored as `T`.
+    /// Decodes a state whose populations are stored as `T`, of this layout
+    /// or version 1's.
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, String> {
-        bincode::serde::decode_from_slice(bytes, bincode::config::standard()).map(|(s, _)| s).map_err(|e| e.to_string())
+        let config = bincode::config::standard();
+        let (version, _) = bincode::serde::decode_from_slice::<u32, _>(bytes, config).map_err(|e| e.to_string())?;
+        match version {
+            1 => {
+                #[derive(Deserialize)]
+                struct V1<T> {
+                    version: u32,
+                    time: f64,
+                    gates_removed: Vec<bool>,
+                    fluid: crate::fluid::DenseV1<T>,
+                }
+                let (v, _) = bincode::serde::decode_from_slice::<V1<T>, _>(bytes, config).map_err(|e| e.to_string())?;
+                Ok(LbmState { version: v.version, time: v.time, gates_removed: v.gates_removed, fluid: v.fluid.into() })
+            }
+            STATE_VERSION => bincode::serde::decode_from_slice(bytes, config).map(|(s, _)| s).map_err(|e| e.to_string()),
+            other => Err(format!(
+                "/lbm/state version {other} is newer than this lbm_proc reads ({STATE_VERSION}): read it with the version that wrote it"
+            )),
+        }
     }
 
     /// The last `/lbm/state` of a recording and its log time (ns), reading
@@ -374,6 +395,7 @@ struct LbmCheckpoint<S = LbmState, G = Gathered> {
 
 /// [`LbmState`] borrowing the lattice.
 #[derive(Serialize)]
+#[serde(bound(serialize = "T: Real"))]
 struct LbmStateRef<'a, T> {
     version: u32,
     time: f64,
@@ -515,13 +537,15 @@ impl<T: Real> Solver for LbmRun<'_, T> {
 
     fn record_state(&mut self, rec: &mut Recording) -> Result<(), RunError> {
         if let (Some(r), Some(ch)) = (rec.recorder(), self.channels.as_ref()) {
-            let state = LbmState {
+            // Borrowed, not cloned: the dense lattice is 1.6 GB on the lab column.
+            let state = LbmStateRef {
                 version: STATE_VERSION,
                 time: self.time,
-                gates_removed: self.gates_removed.clone(),
-                fluid: self.fluid.state().clone(),
+                gates_removed: &self.gates_removed,
+                fluid: self.fluid.state(),
             };
-            r.log_bytes(ch.state, self.time, state.encode())?;
+            let bytes = bincode::serde::encode_to_vec(&state, bincode::config::standard()).expect("state encodes");
+            r.log_bytes(ch.state, self.time, bytes)?;
         }
         Ok(())
     }
@@ -870,5 +894,65 @@ mod tests {
         // Without the liquid's weight on the lattice the pressure is all excess.
         slice_column(&column, CS2, to_pascal, 0.0, dx, &mut cells);
         assert!(cells.iter().all(|c| c.pressure == c.excess_pressure));
+    }
+}
+
+#[cfg(test)]
+mod state_layout_tests {
+    use super::*;
+    use crate::fluid::{Faces, FluidParams};
+
+    #[test]
+    fn a_version_1_state_every_cell_stored_still_reads() {
+        let mut fluid = Fluid::<f32>::new([6, 3, 5], [Faces::Walls; 3], FluidParams::new(0.6)).unwrap();
+        fluid.init_liquid(|[x, _, z]| x < 3 && z < 3).unwrap();
+        fluid.step();
+        let s = fluid.state();
+        #[derive(Serialize)]
+        struct DenseRef<'a> {
+            dims: [usize; 3],
+            faces: [Faces; 3],
+            flags: &'a [u8],
+            populations: &'a [f32],
+            mass: &'a [f64],
+            pending_excess: f64,
+            reference_mass: Option<f64>,
+            step: u64,
+        }
+        #[derive(Serialize)]
+        struct V1<'a> {
+            version: u32,
+            time: f64,
+            gates_removed: Vec<bool>,
+            fluid: DenseRef<'a>,
+        }
+        let v1 = V1 {
+            version: 1,
+            time: 0.25,
+            gates_removed: vec![true],
+            fluid: DenseRef {
+                dims: s.dims,
+                faces: s.faces,
+                flags: &s.flags,
+                populations: &s.populations,
+                mass: &s.mass,
+                pending_excess: s.pending_excess,
+                reference_mass: s.reference_mass,
+                step: s.step,
+            },
+        };
+        let bytes = bincode::serde::encode_to_vec(&v1, bincode::config::standard()).unwrap();
+        let read = LbmState::<f32>::from_bytes(&bytes).unwrap();
+        assert_eq!((read.version, read.time, read.gates_removed.as_slice()), (1, 0.25, &[true][..]));
+        assert_eq!(&read.fluid, s);
+        // And this version's layout round-trips the liquid cells.
+        let now = LbmState { version: STATE_VERSION, time: 0.5, gates_removed: vec![false], fluid: s.clone() };
+        let back = LbmState::<f32>::from_bytes(&now.encode()).unwrap();
+        assert_eq!(back.fluid.flags, s.flags);
+        assert!(bytes.len() > now.encode().len(), "the liquid-only layout is the smaller");
+        // A version from the future is refused by name.
+        let mut future = now.encode();
+        future[0] = 9;
+        assert!(LbmState::<f32>::from_bytes(&future).unwrap_err().contains("version 9"));
     }
 }
