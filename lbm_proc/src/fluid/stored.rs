@@ -102,6 +102,13 @@ impl<'de, T: Real> Deserialize<'de> for FluidState<T> {
         if runs != ncells as u64 {
             return Err(D::Error::custom(format!("flag runs cover {runs} cells, the dims {ncells}")));
         }
+        // The dims are claimed, not backed by data (gas is not stored): a
+        // damaged state must not abort on an impossible allocation.
+        let mut probe: Vec<T> = Vec::new();
+        if probe.try_reserve_exact(Q * ncells).is_err() {
+            return Err(D::Error::custom(format!("a lattice of {ncells} cells does not fit in memory")));
+        }
+        drop(probe);
         let mut cells = Vec::with_capacity(ncells);
         for &(f, n) in &stored.flag_runs {
             cells.extend(std::iter::repeat_n(f, n as usize));
