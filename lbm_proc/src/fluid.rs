@@ -335,8 +335,10 @@ impl<T: Real> Fluid<T> {
 
     /// Continues from a saved state.
     pub fn from_state(mut state: FluidState<T>, params: FluidParams) -> Result<Self, ConfigError> {
-        // A decoded state's arrays were touched on normal pages: copied once
-        // onto huge pages (memory.rs), 1.7 GB for the lab column.
+        // A state built elsewhere may sit on normal pages: copied once onto
+        // huge pages (memory.rs), 1.7 GB for the lab column (a stored state
+        // is expanded onto huge pages already; the copy is the resume's
+        // cost, not the step's).
         state.flags = huge_copy(&state.flags);
         state.populations = huge_copy(&state.populations);
         state.mass = huge_copy(&state.mass);

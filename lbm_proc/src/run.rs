@@ -59,8 +59,15 @@ pub fn state_schema_name<T: Real>() -> String {
 }
 
 impl<T: Real> LbmState<T> {
+    /// This version's layout, whatever layout the state was read from.
     pub fn encode(&self) -> Vec<u8> {
-        bincode::serde::encode_to_vec(self, bincode::config::standard()).expect("state encodes")
+        let state = LbmStateRef {
+            version: STATE_VERSION,
+            time: self.time,
+            gates_removed: &self.gates_removed,
+            fluid: &self.fluid,
+        };
+        bincode::serde::encode_to_vec(&state, bincode::config::standard()).expect("state encodes")
     }
 
     /// Decodes a state whose populations are stored as `T`, of this layout
@@ -82,7 +89,7 @@ impl<T: Real> LbmState<T> {
             }
             STATE_VERSION => bincode::serde::decode_from_slice(bytes, config).map(|(s, _)| s).map_err(|e| e.to_string()),
             other => Err(format!(
-                "/lbm/state version {other} is newer than this lbm_proc reads ({STATE_VERSION}): read it with the version that wrote it"
+                "/lbm/state version {other} is not one this lbm_proc reads (1 and {STATE_VERSION}): read it with the version that wrote it"
             )),
         }
     }
@@ -421,6 +428,22 @@ fn read_checkpoint<T: Real>(
     path: &Path,
     scene: &Scene,
 ) -> Result<(CheckpointFile, LbmCheckpoint<LbmState<T>>), RunError> {
+    // The lattice's layout version leads the solver part (LbmState's first
+    // field): a checkpoint of another layout is named as such.
+    let file = checkpoint::read(path, "lbm_proc", scene).map_err(RecordError::from)?;
+    let version = bincode::serde::decode_from_slice::<u32, _>(&file.solver, bincode::config::standard()).map(|(v, _)| v);
+    if let Ok(v) = version {
+        if v != STATE_VERSION {
+            return Err(RecordError::from(checkpoint::CheckpointError::Damaged {
+                path: path.to_path_buf(),
+                why: format!(
+                    "its lattice is stored in layout version {v}, this lbm_proc resumes version {STATE_VERSION}: \
+                     resume with the lbm_proc that wrote it, or start the run again"
+                ),
+            })
+            .into());
+        }
+    }
     Ok(checkpoint::read_solver(path, "lbm_proc", scene, "its lattice").map_err(RecordError::from)?)
 }
 
@@ -954,5 +977,7 @@ mod state_layout_tests {
         let mut future = now.encode();
         future[0] = 9;
         assert!(LbmState::<f32>::from_bytes(&future).unwrap_err().contains("version 9"));
+        // Read from version 1, written in this version's layout.
+        assert_eq!(LbmState::<f32>::from_bytes(&read.encode()).unwrap().fluid.flags, s.flags);
     }
 }

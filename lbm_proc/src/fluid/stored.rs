@@ -12,8 +12,9 @@
 //!
 //! Read back, gas and wall cells get the populations of rest (f_i = w_i)
 //! and zero mass. A run continued from the stored state computes what the
-//! uninterrupted run computes, bit for bit (tests below and in
-//! `tests/tests/fluid_run.rs`).
+//! uninterrupted run computes, bit for bit (the test below; a resumed
+//! coupled run in `tests/tests/resume.rs`). Every gas and wall cell of a
+//! running lattice holds exactly these values (conversions write them).
 
 use serde::ser::{SerializeSeq, SerializeStruct};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
@@ -96,8 +97,8 @@ impl<'de, T: Real> Deserialize<'de> for FluidState<T> {
         let ncells = nx
             .checked_mul(ny)
             .and_then(|n| n.checked_mul(nz))
-            .filter(|&n| n.checked_mul(Q).is_some())
-            .ok_or_else(|| D::Error::custom(format!("lattice dims {:?} overflow", stored.dims)))?;
+            .filter(|&n| n <= u32::MAX as usize && n.checked_mul(Q).is_some())
+            .ok_or_else(|| D::Error::custom(format!("lattice dims {:?}: more cells than a state holds (2^32)", stored.dims)))?;
         let runs: u64 = stored.flag_runs.iter().map(|&(_, n)| n as u64).sum();
         if runs != ncells as u64 {
             return Err(D::Error::custom(format!("flag runs cover {runs} cells, the dims {ncells}")));
