@@ -10,6 +10,8 @@ LAMMPS's gran/hooke/history has none (mapping: dem_proc/src/lammps.rs).
 
 Throughput: N collapse steps, dem_proc on 1 and 2 threads, LAMMPS on 1 and 2
 MPI ranks; prints particle-steps/s and the ratios per core.
+Then the same with rolling resistance μ_r = 0.05 in both: dem_proc's limited
+constant torque against LAMMPS's `pair_style granular` with `rolling sds`.
 --full: also runs both to 8 t_ref and compares the runouts (front = x beyond
 which 0.5 % of the mass lies, leading edge of the grains, as in summary.json).
 """
@@ -88,8 +90,18 @@ def main():
         o = results[f"dem_proc {n} thread{'s' if n > 1 else ''}"]["particle_steps_per_s"]
         l = results[f"LAMMPS {n} rank{'s' if n > 1 else ''}"]["particle_steps_per_s"]
         print(f"  ratio dem_proc / LAMMPS on {n} core{'s' if n > 1 else ''}: {o / l:.2f}")
-    with_rolling = ours(a.scene, a.steps, 2, extra=["--set", "dem.rolling_friction=0.05", "--set", "dem.wall_rolling_friction=0.05"])
-    print(f"  dem_proc 2 threads with rolling resistance 0.05: {with_rolling['particle_steps_per_s']:.3e} particle-steps/s")
+    # Rolling resistance on, μ_r = 0.05, against LAMMPS's pair granular with
+    # its rolling sds model (dem_proc/src/lammps.rs: another rolling law,
+    # the same work per contact).
+    rolling = ["--set", "dem.rolling_friction=0.05", "--set", "dem.wall_rolling_friction=0.05"]
+    roll_work = os.path.join(work, "rolling")
+    os.makedirs(roll_work, exist_ok=True)
+    run([f"{ROOT}/target/release/dem_proc", "export-lammps", a.scene, "--out", roll_work, "--steps", str(a.steps), "--rolling", *rolling])
+    print("rolling resistance 0.05 (LAMMPS: pair_style granular, rolling sds):")
+    for n in (1, 2):
+        o = ours(a.scene, a.steps, n, extra=rolling)
+        l = lammps(roll_work, n)
+        print(f"  {n} core{'s' if n > 1 else ''}: dem_proc {o['particle_steps_per_s']:.3e}, LAMMPS {l['particle_steps_per_s']:.3e} particle-steps/s, ratio {o['particle_steps_per_s'] / l['particle_steps_per_s']:.2f}")
 
     if a.full:
         # 8 t_ref of the dry column, both codes, rolling off.

@@ -7,8 +7,13 @@
 //!   with m*·γ·v), with m* = m/2 for equal grains and m for a wall;
 //! * `limit_damping` removes attractive normal forces, as the no-tension law here;
 //! * no rolling resistance: LAMMPS's gran styles have none, so the comparison
-//!   runs both codes with μ_r = 0 (the `granular` style's `rolling sds` is a
-//!   spring–dashpot–slider, a different model from the limited constant torque here);
+//!   runs both codes with μ_r = 0; with `rolling` the input uses `pair_style
+//!   granular` instead (`hooke` with `damping mass_velocity`, so η_n = γ_n m*
+//!   as above; `linear_history` with x_γt = γ_t/γ_n = √(k_t/k_n); `rolling
+//!   sds` with k_roll = k_t, no rolling damping and μ_roll = μ_r): a
+//!   spring–dashpot–slider, not the limited constant torque here, but the
+//!   same work per contact (a rolling history, a limit) for a throughput
+//!   comparison with rolling resistance on;
 //! * LAMMPS starts from zero tangential springs; this code keeps the springs
 //!   of the deposition. Both start at rest.
 
@@ -50,6 +55,7 @@ pub fn input_file(
     data: &str,
     steps: u64,
     final_dump: &str,
+    rolling: bool,
 ) -> String {
     let law = &setup.grain_law;
     let wall = &setup.wall_law;
@@ -73,23 +79,42 @@ pub fn input_file(
     let _ = writeln!(s, "read_data {data}");
     let _ = writeln!(s, "balance 1.0 rcb");
     let _ = writeln!(s, "neighbor {} bin\nneigh_modify delay 0 every 1 check yes", setup.numerics.skin);
-    let _ = writeln!(
-        s,
-        "pair_style gran/hooke/history {} {} {} {} {} 1 limit_damping\npair_coeff * *",
-        law.normal_stiffness,
-        law.tangential_stiffness,
-        gamma(law.normal_stiffness, pair_m),
-        gamma(law.tangential_stiffness, pair_m),
-        law.friction
-    );
-    let wall_args = format!(
-        "hooke/history {} {} {} {} {} 1 limit_damping",
-        wall.normal_stiffness,
-        wall.tangential_stiffness,
-        gamma(wall.normal_stiffness, m),
-        gamma(wall.tangential_stiffness, m),
-        wall.friction
-    );
+    let wall_args = if rolling {
+        // η_n = γ_n m* (`damping mass_velocity`), γ_n as gran/hooke/history
+        // takes it, for the pair's m* and, at the walls, the grain's mass.
+        let granular = |l: &crate::law::ContactLaw, m_eff: f64| {
+            format!(
+                "hooke {} {} tangential linear_history {} {} {} rolling sds {} 0 {} damping mass_velocity limit_damping",
+                l.normal_stiffness,
+                gamma(l.normal_stiffness, m_eff),
+                l.tangential_stiffness,
+                (l.tangential_stiffness / l.normal_stiffness).sqrt(),
+                l.friction,
+                l.tangential_stiffness,
+                l.rolling_friction
+            )
+        };
+        let _ = writeln!(s, "pair_style granular\npair_coeff * * {}", granular(law, pair_m));
+        format!("granular {}", granular(wall, m))
+    } else {
+        let _ = writeln!(
+            s,
+            "pair_style gran/hooke/history {} {} {} {} {} 1 limit_damping\npair_coeff * *",
+            law.normal_stiffness,
+            law.tangential_stiffness,
+            gamma(law.normal_stiffness, pair_m),
+            gamma(law.tangential_stiffness, pair_m),
+            law.friction
+        );
+        format!(
+            "hooke/history {} {} {} {} {} 1 limit_damping",
+            wall.normal_stiffness,
+            wall.tangential_stiffness,
+            gamma(wall.normal_stiffness, m),
+            gamma(wall.tangential_stiffness, m),
+            wall.friction
+        )
+    };
     let _ = writeln!(s, "fix walls_x all wall/gran {wall_args} xplane {} {}", lo[0], hi[0]);
     let _ = writeln!(s, "fix walls_y all wall/gran {wall_args} yplane {} {}", lo[1], hi[1]);
     let _ = writeln!(s, "fix walls_z all wall/gran {wall_args} zplane {} NULL", lo[2]);

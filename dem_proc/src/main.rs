@@ -46,6 +46,11 @@ enum Command {
         /// Steps the LAMMPS input runs.
         #[arg(long, default_value_t = 20000)]
         steps: u64,
+        /// Write LAMMPS's `pair_style granular` with its `rolling sds` model
+        /// (μ_roll = the scene's rolling friction) instead of
+        /// gran/hooke/history, which has no rolling resistance.
+        #[arg(long)]
+        rolling: bool,
     },
 }
 
@@ -96,7 +101,7 @@ fn main() -> ExitCode {
             })();
             result.err().unwrap_or(ExitCode::SUCCESS)
         }
-        Command::ExportLammps { scene, set, out, steps } => {
+        Command::ExportLammps { scene, set, out, steps, rolling } => {
             let result = (|| {
                 let scene = load_scene(&scene, &set)?;
                 let w = collapse_world(&scene)?;
@@ -107,7 +112,7 @@ fn main() -> ExitCode {
                 })?;
                 let data = dem_proc::lammps::data_file(&w.grains, setup.domain);
                 let input =
-                    dem_proc::lammps::input_file(&scene, &setup, &w.grains, "packing.data", steps, "final.dump");
+                    dem_proc::lammps::input_file(&scene, &setup, &w.grains, "packing.data", steps, "final.dump", rolling);
                 for (name, text) in [("packing.data", data), ("in.collapse", input)] {
                     std::fs::write(out.join(name), text).map_err(|e| {
                         tell!("dem_proc: cannot write {name}: {e}");
