@@ -219,8 +219,30 @@ pub fn write(campaign: &Campaign, summaries: &[Option<RunSummary>], ctx: &Contex
     speed_against_error(&mut md, &rows, &campaign.cases, &figures)?;
     recorded_sections(&mut md, &rows, &campaign.comparisons, &figures)?;
     let path = campaign.out.join("report.md");
-    std::fs::write(&path, md).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    std::fs::write(&path, &md).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    remove_unlinked_figures(&figures, &md)?;
     Ok(path)
+}
+
+/// Removes the images in `figures` that `md` does not link: those of an
+/// earlier report whose cases or comparisons have changed, which a reader
+/// of the folder would take for this report's.
+fn remove_unlinked_figures(figures: &Path, md: &str) -> Result<(), String> {
+    let linked: std::collections::HashSet<&str> = md
+        .split("figures/")
+        .skip(1)
+        .filter_map(|rest| rest.split([')', ' ', '\n']).next())
+        .collect();
+    let entries = std::fs::read_dir(figures).map_err(|e| format!("cannot list {}: {e}", figures.display()))?;
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let is_image = path.extension().is_some_and(|e| e == "svg" || e == "png");
+        let name = entry.file_name();
+        if is_image && !name.to_str().is_some_and(|n| linked.contains(n)) {
+            std::fs::remove_file(&path).map_err(|e| format!("cannot remove the stale {}: {e}", path.display()))?;
+        }
+    }
+    Ok(())
 }
 
 fn header(md: &mut String, campaign: &Campaign, rows: &[Row], ctx: &Context) {
@@ -894,6 +916,22 @@ fn methods_table(md: &mut String, rows: &[Row]) {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn figures_the_report_does_not_link_are_removed() {
+        let dir = std::env::temp_dir().join(format!("sgf-figures-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for name in ["front.svg", "front.png", "old_case.png", "old.svg", "notes.txt"] {
+            std::fs::write(dir.join(name), b"x").unwrap();
+        }
+        let md = "![fronts](figures/front.svg)\n\n[PNG](figures/front.png)\n";
+        super::remove_unlinked_figures(&dir, md).unwrap();
+        let mut left: Vec<String> =
+            std::fs::read_dir(&dir).unwrap().flatten().map(|e| e.file_name().into_string().unwrap()).collect();
+        left.sort();
+        assert_eq!(left, ["front.png", "front.svg", "notes.txt"]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     use super::*;
 
     fn sample(t_norm: f64, x_norm: f64) -> FrontSample {
