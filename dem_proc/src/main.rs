@@ -111,8 +111,15 @@ fn main() -> ExitCode {
                     ExitCode::FAILURE
                 })?;
                 let data = dem_proc::lammps::data_file(&w.grains, setup.domain);
-                let input =
-                    dem_proc::lammps::input_file(&scene, &setup, &w.grains, "packing.data", steps, "final.dump", rolling);
+                let input = dem_proc::lammps::input_file(
+                    &scene,
+                    &setup,
+                    &w.grains,
+                    "packing.data",
+                    steps,
+                    "final.dump",
+                    rolling,
+                );
                 for (name, text) in [("packing.data", data), ("in.collapse", input)] {
                     std::fs::write(out.join(name), text).map_err(|e| {
                         tell!("dem_proc: cannot write {name}: {e}");

@@ -68,9 +68,8 @@ fn main() {
             let memory = (cells * BYTES_PER_CELL) as f64 / 1e6;
             let dense = (nx * ny * nz * BYTES_PER_CELL) as f64 / 1e6;
             // Blocks per x-column of blocks, to cut into slabs of equal count.
-            let per_column: Vec<usize> = (0..bx)
-                .map(|i| (0..by * bz).filter(|&r| needed[(r / by * by + r % by) * bx + i]).count())
-                .collect();
+            let per_column: Vec<usize> =
+                (0..bx).map(|i| (0..by * bz).filter(|&r| needed[(r / by * by + r % by) * bx + i]).count()).collect();
             for slabs in [2usize, 4, 8, 16] {
                 let target = needed_blocks as f64 / slabs as f64;
                 let (mut cuts, mut acc, mut loads, mut load) = (Vec::new(), 0usize, Vec::new(), 0usize);

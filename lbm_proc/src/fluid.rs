@@ -56,8 +56,8 @@ mod tests;
 
 pub use forcing::{forcing_gain, uses_effective_tau, AppliedForce, ForcedCell, ForcingMemory};
 pub use free_surface::{InterfaceCell, Sample};
-pub(crate) use stored::DenseV1;
 use kernel::*;
+pub(crate) use stored::DenseV1;
 
 /// Cell flags. Liquid cells (fluid, interface) have bit 0 clear, so the
 /// kernel tells "pull from here" from "bounce back" with one bit test.

@@ -431,7 +431,8 @@ fn read_checkpoint<T: Real>(
     // The lattice's layout version leads the solver part (LbmState's first
     // field): a checkpoint of another layout is named as such.
     let file = checkpoint::read(path, "lbm_proc", scene).map_err(RecordError::from)?;
-    let version = bincode::serde::decode_from_slice::<u32, _>(&file.solver, bincode::config::standard()).map(|(v, _)| v);
+    let version =
+        bincode::serde::decode_from_slice::<u32, _>(&file.solver, bincode::config::standard()).map(|(v, _)| v);
     if let Ok(v) = version {
         if v != STATE_VERSION {
             return Err(RecordError::from(checkpoint::CheckpointError::Damaged {

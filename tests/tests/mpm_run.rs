@@ -487,6 +487,10 @@ fn a_soil_without_dilatancy_flows_on_slopes_steeper_than_its_sin_phi() {
     let [(t1, v1), (t2, v2)] = [fit[0], fit[1]];
     assert!(v1 > 0.01 && v2 > v1, "the layer stands: {v1} m/s at 31°, {v2} m/s at 33°");
     let onset = t1 - v1 * (t2 - t1) / (v2 - v1);
-    eprintln!("speeds {v1:.4} and {v2:.4} m/s: flows from tan θ = {onset:.4} (sin φ {:.4}, tan φ {:.4})", phi.sin(), phi.tan());
+    eprintln!(
+        "speeds {v1:.4} and {v2:.4} m/s: flows from tan θ = {onset:.4} (sin φ {:.4}, tan φ {:.4})",
+        phi.sin(),
+        phi.tan()
+    );
     assert!((onset / phi.sin() - 1.0).abs() < 0.03, "onset tan θ = {onset} against sin φ = {}", phi.sin());
 }

@@ -228,11 +228,8 @@ pub fn write(campaign: &Campaign, summaries: &[Option<RunSummary>], ctx: &Contex
 /// earlier report whose cases or comparisons have changed, which a reader
 /// of the folder would take for this report's.
 fn remove_unlinked_figures(figures: &Path, md: &str) -> Result<(), String> {
-    let linked: std::collections::HashSet<&str> = md
-        .split("figures/")
-        .skip(1)
-        .filter_map(|rest| rest.split([')', ' ', '\n']).next())
-        .collect();
+    let linked: std::collections::HashSet<&str> =
+        md.split("figures/").skip(1).filter_map(|rest| rest.split([')', ' ', '\n']).next()).collect();
     let entries = std::fs::read_dir(figures).map_err(|e| format!("cannot list {}: {e}", figures.display()))?;
     for entry in entries.flatten() {
         let path = entry.path();

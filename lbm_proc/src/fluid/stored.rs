@@ -60,8 +60,7 @@ impl<V: Serialize> Serialize for LiquidValues<'_, V> {
 impl<T: Real> Serialize for FluidState<T> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         let ncells = self.flags.len();
-        let liquid: Vec<u32> =
-            (0..ncells).filter(|&c| flags::is_liquid(self.flags[c])).map(|c| c as u32).collect();
+        let liquid: Vec<u32> = (0..ncells).filter(|&c| flags::is_liquid(self.flags[c])).map(|c| c as u32).collect();
         let mut st = s.serialize_struct("FluidState", 8)?;
         st.serialize_field("dims", &self.dims)?;
         st.serialize_field("faces", &self.faces)?;
@@ -98,7 +97,9 @@ impl<'de, T: Real> Deserialize<'de> for FluidState<T> {
             .checked_mul(ny)
             .and_then(|n| n.checked_mul(nz))
             .filter(|&n| n <= u32::MAX as usize && n.checked_mul(Q).is_some())
-            .ok_or_else(|| D::Error::custom(format!("lattice dims {:?}: more cells than a state holds (2^32)", stored.dims)))?;
+            .ok_or_else(|| {
+                D::Error::custom(format!("lattice dims {:?}: more cells than a state holds (2^32)", stored.dims))
+            })?;
         let runs: u64 = stored.flag_runs.iter().map(|&(_, n)| n as u64).sum();
         if runs != ncells as u64 {
             return Err(D::Error::custom(format!("flag runs cover {runs} cells, the dims {ncells}")));
@@ -258,12 +259,16 @@ mod tests {
         let mut stored: Stored<f32> = decode_stored(&encode(run.state()));
         stored.flag_runs[0].1 += 1;
         let bytes = encode_stored(&stored);
-        let err = bincode::serde::decode_from_slice::<FluidState<f32>, _>(&bytes, bincode::config::standard()).unwrap_err();
+        let err =
+            bincode::serde::decode_from_slice::<FluidState<f32>, _>(&bytes, bincode::config::standard()).unwrap_err();
         assert!(err.to_string().contains("flag runs cover"), "{err}");
         stored.flag_runs[0].1 -= 1;
         stored.mass.pop();
-        let err = bincode::serde::decode_from_slice::<FluidState<f32>, _>(&encode_stored(&stored), bincode::config::standard())
-            .unwrap_err();
+        let err = bincode::serde::decode_from_slice::<FluidState<f32>, _>(
+            &encode_stored(&stored),
+            bincode::config::standard(),
+        )
+        .unwrap_err();
         assert!(err.to_string().contains("liquid cells need"), "{err}");
     }
 
