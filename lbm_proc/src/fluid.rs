@@ -202,7 +202,7 @@ pub enum ConfigError {
 }
 
 /// Everything needed to continue a run exactly (with [`FluidParams`]).
-/// Serialised in the stored form of [`stored`]: the liquid cells only.
+/// Serialised in its stored form (`fluid/stored.rs`): the liquid cells only.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FluidState<T> {
     /// Cells along x, y, z.
