@@ -23,7 +23,7 @@ fn main() {
             }
             let (mut rho, mut jm) = (1.0, [0.0f64; 3]);
             for q in 0..Q {
-                let g = f.populations[q * n + cell] as f64;
+                let g = f.population(q, cell) as f64;
                 rho += g;
                 for a in 0..3 {
                     jm[a] += E[q][a] as f64 * g;
@@ -47,7 +47,6 @@ fn main() {
     println!("LBM state at t = {} s, step {}", t as f64 * 1e-9, s.fluid.step);
     let f = &s.fluid;
     let [nx, ny, nz] = f.dims;
-    let n = nx * ny * nz;
     for dz in -2i64..=2 {
         for dy in -1i64..=1 {
             let mut line = String::new();
@@ -61,7 +60,7 @@ fn main() {
                 let mut rho = 1.0;
                 let mut jm = [0.0; 3];
                 for q in 0..Q {
-                    let g = f.populations[q * n + cell] as f64;
+                    let g = f.population(q, cell) as f64;
                     rho += g;
                     for a in 0..3 {
                         jm[a] += E[q][a] as f64 * g;

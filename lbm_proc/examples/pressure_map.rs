@@ -17,7 +17,6 @@ fn main() {
     let (t, s) = LbmState::last_in_recording(&bytes).expect("a recording with an /lbm/state");
     let f = &s.fluid;
     let [nx, ny, nz] = f.dims;
-    let n = nx * ny * nz;
     let pa_per_drho = 1000.0 * (dx / dt).powi(2) / 3.0;
     println!("t = {:.4} s; mean (p - rho g (z_top - z)) in kPa, boxes of 10 x 5 cells; '.' no liquid", t as f64 * 1e-9);
     let (bx, bz) = (10, 5);
@@ -33,7 +32,7 @@ fn main() {
                 if f.flags[c] != flags::FLUID {
                     continue;
                 }
-                let rho = 1.0 + (0..Q).map(|q| f.populations[q * n + c] as f64).sum::<f64>();
+                let rho = 1.0 + (0..Q).map(|q| f.population(q, c) as f64).sum::<f64>();
                 let p = (rho - 1.0) * pa_per_drho;
                 let hydro = if gauge { 0.0 } else { 1000.0 * 9.81 * (top - z) as f64 * dx };
                 let k = (z / bz) * nx.div_ceil(bx) + x / bx;
@@ -75,9 +74,9 @@ fn main() {
                 let c = (z * ny + y) * nx + x;
                 match f.flags[c] {
                     flags::FLUID | flags::INTERFACE => {
-                        let rho = 1.0 + (0..Q).map(|q| f.populations[q * n + c] as f64).sum::<f64>();
+                        let rho = 1.0 + (0..Q).map(|q| f.population(q, c) as f64).sum::<f64>();
                         let jz: f64 =
-                            (0..Q).map(|q| lbm_proc::lattice::E[q][2] as f64 * f.populations[q * n + c] as f64).sum();
+                            (0..Q).map(|q| lbm_proc::lattice::E[q][2] as f64 * f.population(q, c) as f64).sum();
                         uz += jz / rho * dx / dt;
                         if f.flags[c] == flags::FLUID {
                             nf += 1;

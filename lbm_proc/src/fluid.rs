@@ -7,10 +7,13 @@
 //! the second lattice. The lattices are then swapped (A/B pattern). Work is
 //! split over z-planes with rayon; the step allocates nothing.
 //!
-//! Storage, chosen for a bandwidth-bound kernel (lbm-free-surface.md §5):
-//! * populations struct-of-arrays, population i of cell c at `i * ncells + c`,
-//!   cells x-fastest, so one x-row of one direction is contiguous and the
-//!   kernel works on rows of [`LANES`] cells with plain vector loops;
+//! Storage, chosen for a bandwidth-bound kernel (lbm-free-surface.md §5) and
+//! for memory that follows the liquid:
+//! * populations in x-segments of up to [`SEGMENT`] cells ([`Layout`]): a
+//!   segment's 19 populations together, struct of arrays inside it, so one
+//!   x-run of one direction is contiguous and the kernel works on chunks of
+//!   up to [`LANES`] cells with plain vector loops; segments the liquid
+//!   never reaches are never written and cost no memory (`memory.rs`);
 //! * shifted: the stored value is f_i − w_i (ρ0 = 1), as FluidX3D does
 //!   (Lehmann et al. 2022, PRE 106, 015308). Near rest f_i − w_i is ~1e-3 of
 //!   f_i, so f32 keeps ~3 more significant digits of the non-equilibrium
@@ -35,7 +38,7 @@
 use rayon::prelude::*;
 use runtime::isa::Isa;
 
-use crate::memory::{huge_blocks, huge_copy, huge_vec};
+use crate::memory::sparse_zeroed;
 use schemas::scene::ForcingGain;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -50,6 +53,7 @@ mod free_surface;
 #[cfg(test)]
 mod isa_tests;
 mod kernel;
+mod layout;
 mod stored;
 #[cfg(test)]
 mod tests;
@@ -57,6 +61,7 @@ mod tests;
 pub use forcing::{forcing_gain, uses_effective_tau, AppliedForce, ForcedCell, ForcingMemory};
 pub use free_surface::{InterfaceCell, Sample};
 use kernel::*;
+pub use layout::{Layout, SEGMENT};
 pub(crate) use stored::DenseV1;
 
 /// Cell flags. Liquid cells (fluid, interface) have bit 0 clear, so the
@@ -187,6 +192,8 @@ pub enum ConfigError {
     Kappa(f64),
     #[error("set_flag takes FLUID or WALL (interface and gas come from init_liquid / remove_walls), got {0}")]
     Flag(u8),
+    #[error("cell {0:?} holds no liquid (a wall or gas cell stores rest and is never computed), so it has no equilibrium to set")]
+    NotLiquid([usize; 3]),
     #[error("cell {0:?} is not a wall, so it cannot be removed")]
     NotWall([usize; 3]),
     #[error("box dimensions must be >= 1 cell each, got {0:?}")]
@@ -210,7 +217,9 @@ pub struct FluidState<T> {
     pub faces: [Faces; 3],
     /// One of [`flags`] per cell, x fastest.
     pub flags: Vec<u8>,
-    /// Post-collision f_i − w_i, population i of cell c at `i * ncells + c`.
+    /// Post-collision f_i − w_i, population i of cell c at
+    /// [`Layout::index`]`(i, c)` of [`FluidState::layout`]; 0 (rest) in gas
+    /// and wall cells.
     pub populations: Vec<T>,
     /// Liquid mass m of each interface cell (f64 whatever `T` is, so that
     /// mass is conserved to f64 round-off); 0 in all other cells (a fluid
@@ -223,6 +232,18 @@ pub struct FluidState<T> {
     pub reference_mass: Option<f64>,
     /// Steps taken.
     pub step: u64,
+}
+
+impl<T: Real> FluidState<T> {
+    /// Where each population of each cell lies in `populations`.
+    pub fn layout(&self) -> Layout {
+        Layout::new(self.dims)
+    }
+
+    /// Stored f_i − w_i of cell index `c` (x fastest).
+    pub fn population(&self, i: usize, c: usize) -> T {
+        self.populations[self.layout().index(i, c)]
+    }
 }
 
 /// Row classes (bits of `Scratch::rows`).
@@ -320,46 +341,69 @@ impl<T: Real> Fluid<T> {
             .filter(|&n| n > 0 && n.checked_mul(Q).is_some())
             .ok_or(ConfigError::Dims(dims))?;
         let rest = crate::lattice::equilibrium(1.0, params.acceleration.map(|a| 0.5 * a));
+        let rest: [T; Q] = std::array::from_fn(|i| T::from_f64(rest[i] - W[i]));
+        let layout = Layout::new(dims);
+        let mut populations = sparse_zeroed(layout.len());
+        let (length, segments) = (layout.segment(), dims[0].div_ceil(layout.segment()));
+        populations.par_chunks_mut(Q * length).enumerate().for_each(|(k, segment)| {
+            // The cells of the segment (the row's last one is padded with zeros).
+            let cells = (dims[0] - (k % segments) * length).min(length);
+            for (i, run) in segment.chunks_exact_mut(length).enumerate() {
+                run[..cells].fill(rest[i]);
+            }
+        });
         let state = FluidState {
             dims,
             faces,
-            flags: huge_vec(ncells, |_| flags::FLUID),
-            populations: huge_blocks(&std::array::from_fn::<T, Q, _>(|i| T::from_f64(rest[i] - W[i])), ncells),
-            mass: huge_vec(ncells, |_| 0.0),
+            flags: vec![flags::FLUID; ncells],
+            populations,
+            mass: sparse_zeroed(ncells),
             pending_excess: 0.0,
             reference_mass: None,
             step: 0,
         };
-        Self::from_placed_state(state, params)
+        Self::from_state(state, params)
+    }
+
+    /// A box of gas: no liquid until [`Fluid::init_liquid`]. Nothing is
+    /// written to the populations, so set-up costs memory and time only
+    /// where the liquid is put (`memory.rs`).
+    pub fn empty(dims: [usize; 3], faces: [Faces; 3], params: FluidParams) -> Result<Self, ConfigError> {
+        params.validate()?;
+        let ncells = dims[0]
+            .checked_mul(dims[1])
+            .and_then(|n| n.checked_mul(dims[2]))
+            .filter(|&n| n > 0 && n.checked_mul(Q).is_some())
+            .ok_or(ConfigError::Dims(dims))?;
+        let state = FluidState {
+            dims,
+            faces,
+            flags: vec![flags::GAS; ncells],
+            populations: sparse_zeroed(Layout::new(dims).len()),
+            mass: sparse_zeroed(ncells),
+            pending_excess: 0.0,
+            reference_mass: None,
+            step: 0,
+        };
+        Self::from_state(state, params)
     }
 
     /// Continues from a saved state.
-    pub fn from_state(mut state: FluidState<T>, params: FluidParams) -> Result<Self, ConfigError> {
-        // A state built elsewhere may sit on normal pages: copied once onto
-        // huge pages (memory.rs), 1.7 GB for the lab column (a stored state
-        // is expanded onto huge pages already; the copy is the resume's
-        // cost, not the step's).
-        state.flags = huge_copy(&state.flags);
-        state.populations = huge_copy(&state.populations);
-        state.mass = huge_copy(&state.mass);
-        Self::from_placed_state(state, params)
-    }
-
-    /// [`Fluid::from_state`] for a state whose arrays are already placed.
-    fn from_placed_state(state: FluidState<T>, params: FluidParams) -> Result<Self, ConfigError> {
+    pub fn from_state(state: FluidState<T>, params: FluidParams) -> Result<Self, ConfigError> {
         params.validate()?;
         let [nx, ny, nz] = state.dims;
         let ncells = nx * ny * nz;
+        let layout = state.layout();
         if ncells == 0
             || state.flags.len() != ncells
-            || state.populations.len() != Q * ncells
+            || state.populations.len() != layout.len()
             || state.mass.len() != ncells
         {
             return Err(ConfigError::State(format!(
                 "dims {:?} need {} flags, {} populations and {} masses, got {}, {} and {}",
                 state.dims,
                 ncells,
-                Q * ncells,
+                layout.len(),
                 ncells,
                 state.flags.len(),
                 state.populations.len(),
@@ -373,12 +417,14 @@ impl<T: Real> Fluid<T> {
             return Err(ConfigError::State("liquid masses must be finite".into()));
         }
         let scratch = Scratch {
-            next: huge_copy(&state.populations),
+            // The step writes every liquid cell of `next` before it is read;
+            // gas and wall cells hold 0 in both lattices.
+            next: sparse_zeroed(layout.len()),
             rows: vec![0; ny * nz],
             spans: vec![(0, 0); ny * nz],
             rows_stale: true,
-            fill: huge_vec(ncells, |_| 0.0),
-            interface_density: huge_vec(ncells, |_| 0.0),
+            fill: sparse_zeroed(ncells),
+            interface_density: sparse_zeroed(ncells),
             interface: Vec::new(),
             fluid_count: 0,
             pending_returned: 0,
@@ -485,7 +531,8 @@ impl<T: Real> Fluid<T> {
         Ok(())
     }
 
-    /// Sets `cell` to equilibrium with density `rho` and velocity `u` (lattice units).
+    /// Sets liquid `cell` to equilibrium with density `rho` and velocity `u`
+    /// (lattice units); a gas or wall cell is refused.
     ///
     /// The stored populations are post-collision, whose momentum is ρ(u + a/2)
     /// under Guo forcing, so the equilibrium is taken at u + a/2; the cell
@@ -494,6 +541,11 @@ impl<T: Real> Fluid<T> {
         // A begun step's conversions read the kernel's interface densities: finish it first.
         self.finish_step();
         let c = self.index(cell)?;
+        // Gas and wall cells hold 0 (rest) in both lattices: what a stored
+        // state reads back and what memory never written holds (memory.rs).
+        if !flags::is_liquid(self.state.flags[c]) {
+            return Err(ConfigError::NotLiquid(cell));
+        }
         let a = self.params.acceleration;
         let feq = crate::lattice::equilibrium(rho, [u[0] + 0.5 * a[0], u[1] + 0.5 * a[1], u[2] + 0.5 * a[2]]);
         self.write_cell(c, &std::array::from_fn(|i| feq[i] - W[i]));
@@ -503,12 +555,20 @@ impl<T: Real> Fluid<T> {
         Ok(())
     }
 
-    /// Sets the stored f_i − w_i of cell index `c` in both lattices.
+    /// Sets the stored f_i − w_i of cell index `c` in both lattices. A
+    /// value already there is not written again, so zeroing gas that was
+    /// never liquid backs no memory (`memory.rs`).
     fn write_cell(&mut self, c: usize, g: &[f64; Q]) {
-        let n = self.ncells();
+        let layout = self.state.layout();
+        let base = layout.base(c);
         for i in 0..Q {
-            self.state.populations[i * n + c] = T::from_f64(g[i]);
-            self.scratch.next[i * n + c] = T::from_f64(g[i]);
+            let v = T::from_f64(g[i]);
+            for lattice in [&mut self.state.populations, &mut self.scratch.next] {
+                let slot = &mut lattice[base + i * layout.segment()];
+                if *slot != v {
+                    *slot = v;
+                }
+            }
         }
     }
 
@@ -525,12 +585,12 @@ impl<T: Real> Fluid<T> {
 
     /// [`Fluid::moments_at`] with the cell's last direct force `ib` given.
     fn moments_with(&self, c: usize, ib: [f64; 3]) -> (f64, [f64; 3]) {
-        let n = self.ncells();
-        let p = &self.state.populations;
+        let layout = self.state.layout();
+        let p = &self.state.populations[layout.base(c)..];
         let mut drho = 0.0;
         let mut j = [0.0; 3];
         for i in 0..Q {
-            let g = p[i * n + c].to_f64();
+            let g = p[i * layout.segment()].to_f64();
             drho += g;
             for a in 0..3 {
                 j[a] += E[i][a] as f64 * g;
@@ -544,8 +604,9 @@ impl<T: Real> Fluid<T> {
 
     /// Density ρ = Σ f_i of cell index `c`, summed as [`Fluid::moments_at`] does.
     fn density_at(&self, c: usize) -> f64 {
-        let n = self.ncells();
-        density_of(|i| self.state.populations[i * n + c].to_f64())
+        let layout = self.state.layout();
+        let p = &self.state.populations[layout.base(c)..];
+        density_of(|i| p[i * layout.segment()].to_f64())
     }
 
     /// Density and velocity of `cell`, lattice units.
@@ -661,7 +722,7 @@ impl<T: Real> Fluid<T> {
     /// steps. Mass drift is reported by [`Fluid::mass_drift`].
     pub fn check(&self, limits: &WatchdogLimits) -> Result<(), Instability> {
         let [nx, ny, nz] = self.state.dims;
-        let n = self.ncells();
+        let layout = self.state.layout();
         let cs = crate::lattice::CS2.sqrt();
         let found = (0..nz).into_par_iter().find_map_first(|z| {
             // The forced cells walked along, as in `plane_liquid_moments`.
@@ -671,8 +732,10 @@ impl<T: Real> Fluid<T> {
                 if !flags::is_liquid(flag) {
                     continue;
                 }
-                let bad = if let Some(i) = (0..Q).find(|&i| !self.state.populations[i * n + c].is_finite()) {
-                    Some((Quantity::Population(i), self.state.populations[i * n + c].to_f64()))
+                let p = &self.state.populations[layout.base(c)..];
+                let s = layout.segment();
+                let bad = if let Some(i) = (0..Q).find(|&i| !p[i * s].is_finite()) {
+                    Some((Quantity::Population(i), p[i * s].to_f64()))
                 } else {
                     let (rho, u) = self.moments_with(c, forced.force_at(c));
                     let mach = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt() / cs;
@@ -867,7 +930,7 @@ impl<T: Real> Fluid<T> {
             nx,
             ny,
             nz,
-            ncells: nx * ny * nz,
+            layout: self.state.layout(),
             faces: self.state.faces,
             coef,
             accel: self.params.acceleration,
@@ -940,7 +1003,7 @@ fn copy_lanes<T: Copy>(dst: &mut [T], src: &[T]) {
 ///
 /// Sound where each index is written by one task only and nothing reads the
 /// buffer while the writers run. In the kernel each thread handles whole
-/// z-planes and writes only indices `i * ncells + c` with c in its own plane.
+/// z-planes and writes only the populations of cells in its own plane.
 pub(crate) struct SharedOut<T>(*mut T, usize);
 // SAFETY: see the type's comment; T itself is sent between threads.
 unsafe impl<T: Send> Sync for SharedOut<T> {}

@@ -1,73 +1,73 @@
-//! Lattice arrays on 2 MiB pages.
+//! Lattice arrays whose memory follows the liquid.
 //!
-//! The lab column's lattice is 19.4M cells, of which ~0.6M hold liquid:
-//! each active row is a short run of cells, and population i of a row lies
-//! 78 MB from population i + 1. With 4 KiB pages every row the kernel
-//! visits touches ~60 pages (19 populations read from up to nine rows and
-//! written to one), each a TLB miss. Linux backs memory with transparent
-//! huge pages only where asked (`/sys/kernel/mm/transparent_hugepage/enabled`
-//! = `madvise`, the usual default), so the big arrays ask, before their
-//! pages are first touched. Where huge pages are off or unknown (another OS)
-//! this is a no-op; results never depend on it.
+//! The lab column's box is 19.4 M cells, of which ~0.6 M hold liquid. Its
+//! arrays are allocated zeroed and large, which the allocator serves with
+//! fresh anonymous pages of the operating system: a page costs memory only
+//! once it is first written, and reads of a page never written see zeros
+//! without backing it. The lattice writes only where there is liquid (or
+//! was), so its resident memory is that of the liquid's pages
+//! (`fluid/layout.rs`). Transparent huge pages would back 2 MiB at the
+//! first write into a region, a page of hundreds of segments of which only
+//! a few hold liquid, so these arrays ask for normal pages. Where the OS
+//! does not allocate lazily the arrays are simply dense; results never
+//! depend on it.
 
-/// Arrays smaller than this stay on normal pages (less than one huge page
-/// would be gained).
-const HUGE_FROM_BYTES: usize = 8 << 20;
+use crate::real::Real;
 
-const HUGE_PAGE: usize = 2 << 20;
+/// Arrays smaller than this are not worth an advice call.
+const ADVISE_FROM_BYTES: usize = 8 << 20;
 
-/// Asks for huge pages under the 2 MiB-aligned part of `len` bytes from
-/// `ptr`. Only pages not yet touched are affected.
-fn advise(ptr: *const u8, len: usize) {
-    if len < HUGE_FROM_BYTES {
+/// A vector of `len` zeros whose pages are backed only once written
+/// (see the module's comment).
+pub fn sparse_zeroed<T: Real>(len: usize) -> Vec<T> {
+    // `vec![0.0; n]` of a float allocates zeroed memory (calloc), which for
+    // large sizes is a fresh mapping: nothing is written here.
+    let v = vec![T::ZERO; len];
+    no_huge_pages(v.as_ptr() as *const u8, len * std::mem::size_of::<T>());
+    v
+}
+
+/// Asks for normal pages under `len` bytes from `ptr` (untouched pages only).
+fn no_huge_pages(ptr: *const u8, len: usize) {
+    if len < ADVISE_FROM_BYTES {
         return;
     }
     #[cfg(target_os = "linux")]
     {
-        let start = (ptr as usize).next_multiple_of(HUGE_PAGE);
-        let end = (ptr as usize + len) / HUGE_PAGE * HUGE_PAGE;
+        const PAGE: usize = 4096;
+        let start = (ptr as usize).next_multiple_of(PAGE);
+        let end = (ptr as usize + len) / PAGE * PAGE;
         if end > start {
-            // SAFETY: the range lies inside one live allocation; MADV_HUGEPAGE
+            // SAFETY: the range lies inside one live allocation; MADV_NOHUGEPAGE
             // changes how its pages are backed, never their contents. A
-            // failure (a kernel without THP) leaves normal pages.
-            unsafe { libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_HUGEPAGE) };
+            // failure (a kernel without THP) leaves the default.
+            unsafe { libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_NOHUGEPAGE) };
         }
     }
     #[cfg(not(target_os = "linux"))]
     let _ = ptr;
 }
 
-/// A vector of `len` elements `value(k)`, on huge pages where the OS gives
-/// them. Filled on every thread of the pool: first touching ~3 GB of pages
-/// (the lab column's lattice) is most of the lattice's set-up.
-pub fn huge_vec<T: Send>(len: usize, value: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
-    use rayon::prelude::*;
-    let mut v = Vec::with_capacity(len);
-    advise(v.as_ptr() as *const u8, len * std::mem::size_of::<T>());
-    v.par_extend((0..len).into_par_iter().with_min_len(1 << 16).map(value));
-    v
-}
-
-/// `values.len()` blocks of `block` elements, block i all `values[i]`, on
-/// huge pages where the OS gives them (the populations: one block per
-/// lattice direction), filled on every thread of the pool.
-pub fn huge_blocks<T: Copy + Default + Send + Sync>(values: &[T], block: usize) -> Vec<T> {
-    use rayon::prelude::*;
-    // Filled per block: an index-to-block division per element took most
-    // of the lattice's set-up.
-    let mut v = huge_vec(values.len() * block, |_| T::default());
-    v.par_chunks_mut(block.max(1)).zip(values).for_each(|(b, &x)| b.fill(x));
-    v
-}
-
-/// A copy of `src` on huge pages where the OS gives them, made on every
-/// thread of the pool.
-pub fn huge_copy<T: Copy + Send + Sync>(src: &[T]) -> Vec<T> {
-    use rayon::prelude::*;
-    let mut v = Vec::with_capacity(src.len());
-    advise(v.as_ptr() as *const u8, std::mem::size_of_val(src));
-    v.par_extend(src.par_iter().with_min_len(1 << 16).copied());
-    v
+/// How many of the pages under `bytes` from `ptr` are resident (Linux;
+/// `None` elsewhere or on error).
+pub fn resident_pages(ptr: *const u8, bytes: usize) -> Option<usize> {
+    #[cfg(target_os = "linux")]
+    {
+        const PAGE: usize = 4096;
+        let start = ptr as usize / PAGE * PAGE;
+        let pages = (ptr as usize + bytes).div_ceil(PAGE) - start / PAGE;
+        let mut map = vec![0u8; pages];
+        // SAFETY: the range covers whole pages of one live allocation (the
+        // first and last possibly shared with its neighbours, which mincore
+        // only reads); `map` has one byte per page.
+        let rc = unsafe { libc::mincore(start as *mut libc::c_void, pages * PAGE, map.as_mut_ptr()) };
+        (rc == 0).then(|| map.iter().filter(|&&b| b & 1 == 1).count())
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = (ptr, bytes);
+        None
+    }
 }
 
 #[cfg(test)]
@@ -75,15 +75,21 @@ mod tests {
     use super::*;
 
     #[test]
-    fn huge_vectors_hold_what_was_asked() {
-        let n = (HUGE_FROM_BYTES / 4) * 3 + 7;
-        let v = huge_vec(n, |k| k as u32);
+    fn sparse_vectors_are_zero_and_cost_only_the_pages_written() {
+        let n = 64 << 20; // 256 MiB of f32
+        let mut v: Vec<f32> = sparse_zeroed(n);
         assert_eq!(v.len(), n);
-        assert!(v.iter().enumerate().all(|(k, &x)| x == k as u32));
-        assert_eq!(huge_copy(&v), v);
-        assert_eq!(huge_copy(&[1.5f32, 2.5]), vec![1.5, 2.5]);
-        let b = huge_blocks(&[1.0f32, 2.0, 3.0], n);
-        assert_eq!(b.len(), 3 * n);
-        assert!(b.iter().enumerate().all(|(k, &x)| x == (k / n + 1) as f32));
+        // One value every 16 MiB: 16 pages written.
+        for k in (0..n).step_by(4 << 20) {
+            v[k] = 1.0;
+        }
+        if let Some(pages) = resident_pages(v.as_ptr() as *const u8, n * 4) {
+            // 16 pages and the allocator's header page at most. (Checked
+            // before any read: a read maps the shared zero page, which
+            // mincore counts, though it costs no memory.)
+            assert!((16..=17).contains(&pages), "{pages} pages resident");
+        }
+        assert_eq!(v.iter().filter(|&&x| x == 1.0).count(), 16);
+        assert_eq!(v.iter().filter(|&&x| x == 0.0).count(), n - 16);
     }
 }

@@ -18,8 +18,10 @@ fn lattice_units() -> Units {
 /// Σ_c Σ_i f_i e_i of the stored (post-collision) populations, f64 sums.
 fn momentum<T: Real>(fluid: &Fluid<T>) -> [f64; 3] {
     let n = fluid.ncells();
-    let p = &fluid.state().populations;
-    std::array::from_fn(|a| (0..Q).map(|i| E[i][a] as f64 * (0..n).map(|c| p[i * n + c].to_f64()).sum::<f64>()).sum())
+    let p = fluid.state();
+    std::array::from_fn(|a| {
+        (0..Q).map(|i| E[i][a] as f64 * (0..n).map(|c| p.population(i, c).to_f64()).sum::<f64>()).sum()
+    })
 }
 
 /// Sangani & Acrivos 1982 / Hasimoto 1959: drag on a simple cubic array of
@@ -289,8 +291,10 @@ fn momentum_given_to_the_fluid_is_minus_what_the_spheres_receive() {
 /// Σ_i f_i e_i of each cell's stored populations.
 fn cell_momenta<T: Real>(fluid: &Fluid<T>) -> Vec<[f64; 3]> {
     let n = fluid.ncells();
-    let p = &fluid.state().populations;
-    (0..n).map(|c| std::array::from_fn(|a| (0..Q).map(|i| E[i][a] as f64 * p[i * n + c].to_f64()).sum())).collect()
+    let p = fluid.state();
+    (0..n)
+        .map(|c| std::array::from_fn(|a| (0..Q).map(|i| E[i][a] as f64 * p.population(i, c).to_f64()).sum()))
+        .collect()
 }
 
 #[test]

@@ -155,7 +155,8 @@ fn water_block_in_f64_keeps_its_mass_and_matches_f32() {
     let bytes = std::fs::read(out.join("run.mcap")).expect("run.mcap written");
     let (_, state) = lbm_proc::run::LbmState::<f64>::last_of_recording(&bytes).expect("an f64 /lbm/state");
     assert_eq!(state.fluid.dims, [100, 25, 40]);
-    assert_eq!(state.fluid.populations.len(), 19 * 100 * 25 * 40);
+    assert_eq!(state.fluid.populations.len(), state.fluid.layout().len());
+    assert_eq!(state.fluid.layout().len(), 19 * 128 * 25 * 40, "x-rows of 100 cells in one segment of 128");
     let refused = lbm_proc::run::LbmState::last_in_recording(&bytes).unwrap_err();
     assert!(refused.contains("lbm_proc::run::LbmState<f64>") && refused.contains("lbm.precision"), "{refused}");
 }

@@ -220,22 +220,26 @@ impl<T: Real> Fluid<T> {
     }
 
     /// Rebuilds the interface list, the fluid count and the fill of every
-    /// cell from the flags and masses (after set-up or a restart).
+    /// liquid cell from the flags and masses (after set-up or a restart).
+    ///
+    /// Pre: gas and wall cells have fill 0, as every change of flag leaves
+    /// them (and a fresh fill array holds); they are not visited, so the
+    /// gas's pages stay unbacked (memory.rs).
     pub(super) fn rebuild_lists(&mut self) {
         self.scratch.interface.clear();
         self.scratch.fluid_count = 0;
         for c in 0..self.ncells() {
-            self.scratch.fill[c] = match self.state.flags[c] {
+            match self.state.flags[c] {
                 flags::FLUID => {
                     self.scratch.fluid_count += 1;
-                    1.0
+                    self.scratch.fill[c] = 1.0;
                 }
                 flags::INTERFACE => {
                     self.scratch.interface.push(c);
-                    self.state.mass[c] / self.density_at(c)
+                    self.scratch.fill[c] = self.state.mass[c] / self.density_at(c);
                 }
-                _ => 0.0,
-            };
+                _ => debug_assert_eq!(self.scratch.fill[c], 0.0, "gas or wall cell {c} with a fill"),
+            }
         }
     }
 
@@ -256,8 +260,18 @@ impl<T: Real> Fluid<T> {
         self.finish_step();
         let n = self.ncells();
         for c in 0..n {
-            if self.state.flags[c] != flags::WALL {
-                self.state.flags[c] = if liquid(self.coords(c)) { flags::FLUID } else { flags::GAS };
+            let old = self.state.flags[c];
+            if old != flags::WALL {
+                let new = if liquid(self.coords(c)) { flags::FLUID } else { flags::GAS };
+                self.state.flags[c] = new;
+                // Gas holds rest and no mass, as it already does where it
+                // was gas: only a liquid cell turned gas is written (the
+                // gas of a fresh box stays unbacked memory, memory.rs).
+                if new == flags::GAS && flags::is_liquid(old) {
+                    self.write_cell(c, &[0.0; Q]);
+                    self.state.mass[c] = 0.0;
+                    self.scratch.fill[c] = 0.0;
+                }
             }
         }
         for c in 0..n {
@@ -285,17 +299,17 @@ impl<T: Real> Fluid<T> {
         }
         for c in 0..n {
             match self.state.flags[c] {
-                flags::GAS => {
-                    self.write_cell(c, &[0.0; Q]);
-                    self.state.mass[c] = 0.0;
-                }
                 flags::FLUID | flags::INTERFACE => {
                     let x = self.coords(c);
                     let depth = top[x[p] + dims[p] * x[q]].map_or(0, |t| t.abs_diff(x[k])) as f64;
                     let rho = 1.0 + 3.0 * a[k].abs() * depth;
                     self.set_equilibrium(x, rho, [0.0; 3])?;
-                    let interface = self.state.flags[c] == flags::INTERFACE;
-                    self.state.mass[c] = if interface { 0.5 * rho } else { 0.0 };
+                    // A fluid cell's mass is its density: its slot stays 0 (and unbacked).
+                    if self.state.flags[c] == flags::INTERFACE {
+                        self.state.mass[c] = 0.5 * rho;
+                    } else if self.state.mass[c] != 0.0 {
+                        self.state.mass[c] = 0.0;
+                    }
                 }
                 _ => {}
             }
@@ -750,9 +764,10 @@ impl<T: Real> Fluid<T> {
         let (_, u) = self.moments_at(c);
         let a = self.params.acceleration;
         let feq = crate::lattice::equilibrium(delta, std::array::from_fn(|d| u[d] + 0.5 * a[d]));
-        let n = self.ncells();
+        let layout = self.state.layout();
+        let base = layout.base(c);
         for i in 0..Q {
-            let f = &mut self.state.populations[i * n + c];
+            let f = &mut self.state.populations[base + i * layout.segment()];
             *f = T::from_f64(f.to_f64() + feq[i]);
         }
     }

@@ -1,5 +1,5 @@
-//! The fused stream–collide kernel: one z-plane at a time, rows of
-//! [`LANES`] cells, half-way bounce-back, the free surface's gas
+//! The fused stream–collide kernel: one z-plane at a time, rows in chunks
+//! of up to [`LANES`] cells inside one segment ([`Layout`]), half-way bounce-back, the free surface's gas
 //! reconstruction and mass exchange and the direct forcing in the same
 //! pass; compiled for the baseline and the AVX2 instruction sets
 //! ([`runtime::isa`]), bit-identical (`fluid/isa_tests.rs`).
@@ -22,7 +22,7 @@ pub(super) struct Kernel<'a, T> {
     pub(super) nx: usize,
     pub(super) ny: usize,
     pub(super) nz: usize,
-    pub(super) ncells: usize,
+    pub(super) layout: Layout,
     pub(super) faces: [Faces; 3],
     pub(super) coef: Coefficients<T>,
     pub(super) accel: [f64; 3],
@@ -127,7 +127,8 @@ impl<T: Real> Kernel<'_, T> {
         // every pull of every row the paper's column ran at 9 MLUPS against
         // the bulk box's 125.
         let check_walls = class & (ROW_SOURCES_FLUID | ROW_SOURCES_NO_WALL) == 0;
-        let row_start = (z * self.ny + y) * self.nx;
+        let r = z * self.ny + y;
+        let row_start = r * self.nx;
         // A mixed row is worked only over its liquid span: with a short
         // column in a long flume most of a row is gas.
         let (mut x0, end) = if all_fluid {
@@ -140,7 +141,9 @@ impl<T: Real> Kernel<'_, T> {
             self.prefetch_row(y + PREFETCH_AHEAD, z, x0, end, out);
         }
         while x0 < end {
-            let n = LANES.min(end - x0);
+            // A chunk never spans two segments (layout.rs).
+            let segment = self.layout.segment();
+            let n = (segment - x0 % segment).min(end - x0);
             let own = row_start + x0;
             // Forced cells before this chunk lie outside the liquid span or in skipped chunks.
             let skipped = k + self.forced[k..k_end].iter().take_while(|c| c.cell < own).count();
@@ -199,7 +202,7 @@ impl<T: Real> Kernel<'_, T> {
             }
             for i in 0..Q {
                 // SAFETY: cell indices own..own+n lie in plane z, which only this task writes.
-                let dst = unsafe { out.slice(i * self.ncells + own, n) };
+                let dst = unsafe { out.slice(self.layout.at(i, r, x0), n) };
                 if own_liquid {
                     copy_lanes(dst, &f[i][..n]);
                 } else {
@@ -413,9 +416,10 @@ impl<T: Real> Kernel<'_, T> {
         f: &mut [[T; LANES]; Q],
         mass: &SharedOut<f64>,
     ) {
-        let (nx, ny, n) = (self.nx, self.ny, self.ncells);
+        let (nx, ny) = (self.nx, self.ny);
         let c = (z * ny + y) * nx + x;
-        let own: [f64; Q] = std::array::from_fn(|j| self.src[j * n + c].to_f64());
+        let base = self.layout.at(0, z * ny + y, x);
+        let own: [f64; Q] = std::array::from_fn(|j| self.src[base + j * self.layout.segment()].to_f64());
         let rho = 1.0 + own.iter().sum::<f64>();
         let u: [f64; 3] = std::array::from_fn(|a| {
             let j: f64 = (0..Q).map(|i| E[i][a] as f64 * own[i]).sum();
@@ -467,7 +471,6 @@ impl<T: Real> Kernel<'_, T> {
             use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
             let per_line = 64 / std::mem::size_of::<T>();
             let (lo, hi) = (x0.saturating_sub(1), (end + 1).min(self.nx));
-            let own = (z * self.ny + y) * self.nx;
             let r = z * self.ny + y;
             // Interface cells read their own populations (their velocity and
             // the outgoing half of the mass exchange), off the pulls' rows.
@@ -477,19 +480,20 @@ impl<T: Real> Kernel<'_, T> {
                 if let (Some(ys), Some(zs)) =
                     (wrap(y, -e[1], self.ny, self.faces[1]), wrap(z, -e[2], self.nz, self.faces[2]))
                 {
-                    let row = i * self.ncells + (zs * self.ny + ys) * self.nx;
-                    for x in (lo..hi).step_by(per_line) {
+                    let row = zs * self.ny + ys;
+                    for x in (lo..hi).step_by(per_line).chain(std::iter::once(hi - 1)) {
+                        let k = self.layout.at(i, row, x);
                         // SAFETY: a prefetch reads nothing architecturally; the index is in bounds anyway.
-                        unsafe { _mm_prefetch::<_MM_HINT_T0>(self.src.as_ptr().add(row + x) as *const i8) };
+                        unsafe { _mm_prefetch::<_MM_HINT_T0>(self.src.as_ptr().add(k) as *const i8) };
                     }
                 }
-                let dst = i * self.ncells + own;
                 for x in (x0..end).step_by(per_line) {
+                    let k = self.layout.at(i, r, x);
                     // SAFETY: as above, `out` spans every population of every cell.
-                    unsafe { _mm_prefetch::<_MM_HINT_T0>(out.0.add(dst + x) as *const i8) };
+                    unsafe { _mm_prefetch::<_MM_HINT_T0>(out.0.add(k) as *const i8) };
                     if own_read {
                         // SAFETY: as above.
-                        unsafe { _mm_prefetch::<_MM_HINT_T0>(self.src.as_ptr().add(dst + x) as *const i8) };
+                        unsafe { _mm_prefetch::<_MM_HINT_T0>(self.src.as_ptr().add(k) as *const i8) };
                     }
                 }
             }
@@ -502,29 +506,44 @@ impl<T: Real> Kernel<'_, T> {
     /// by [`Kernel::interface_cell`] (a fluid cell never borders gas).
     #[inline(always)]
     fn gather(&self, i: usize, y: usize, z: usize, x0: usize, n: usize, check_walls: bool, dst: &mut [T; LANES]) {
-        let (nx, ncells, src) = (self.nx, self.ncells, self.src);
-        let own = (z * self.ny + y) * nx + x0;
-        let bounce = OPP[i] * ncells + own;
+        let (nx, src, layout) = (self.nx, self.src, self.layout);
+        let bounce = layout.at(OPP[i], z * self.ny + y, x0);
         let e = E[i];
         let (Some(ys), Some(zs)) = (wrap(y, -e[1], self.ny, self.faces[1]), wrap(z, -e[2], self.nz, self.faces[2]))
         else {
             copy_lanes(&mut dst[..n], &src[bounce..bounce + n]);
             return;
         };
-        let src_row = (zs * self.ny + ys) * nx;
-        let base = i * ncells + src_row;
-        // Lanes whose source x falls off the row: lane 0 for e_x = +1, lane n−1 for e_x = −1.
-        let lo = usize::from(e[0] == 1 && x0 == 0);
-        let hi = if e[0] == -1 && x0 + n == nx { n - 1 } else { n };
-        let start = (x0 + lo) as isize - e[0] as isize;
-        let start = base + start as usize;
-        copy_lanes(&mut dst[lo..hi], &src[start..start + (hi - lo)]);
+        let source_row = zs * self.ny + ys;
+        let src_row = source_row * nx;
+        // Lanes whose source x lies outside this chunk's segment: lane 0 for
+        // e_x = +1 at a segment's start, lane n−1 for e_x = −1 at its end;
+        // off the row's ends they wrap or bounce back.
+        let segment = layout.segment();
+        let lo = usize::from(e[0] == 1 && x0 % segment == 0);
+        let hi = if e[0] == -1 && ((x0 + n) % segment == 0 || x0 + n == nx) { n - 1 } else { n };
+        if hi > lo {
+            let start = layout.at(i, source_row, ((x0 + lo) as isize - e[0] as isize) as usize);
+            copy_lanes(&mut dst[lo..hi], &src[start..start + (hi - lo)]);
+        }
         let periodic_x = self.faces[0] == Faces::Periodic;
         if lo == 1 {
-            dst[0] = if periodic_x { src[base + nx - 1] } else { src[bounce] };
+            dst[0] = if x0 > 0 {
+                src[layout.at(i, source_row, x0 - 1)]
+            } else if periodic_x {
+                src[layout.at(i, source_row, nx - 1)]
+            } else {
+                src[bounce]
+            };
         }
         if hi == n - 1 {
-            dst[n - 1] = if periodic_x { src[base] } else { src[bounce + n - 1] };
+            dst[n - 1] = if x0 + n < nx {
+                src[layout.at(i, source_row, x0 + n)]
+            } else if periodic_x {
+                src[layout.at(i, source_row, 0)]
+            } else {
+                src[bounce + n - 1]
+            };
         }
         if check_walls {
             for l in 0..n {

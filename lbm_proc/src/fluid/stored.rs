@@ -10,8 +10,9 @@
 //! (19.4 M cells, ~0.6 M of them liquid) is written as ~50 MB instead of
 //! 1.6 GB, without the dense copy the derived form needed.
 //!
-//! Read back, gas and wall cells get the populations of rest (f_i = w_i)
-//! and zero mass. A run continued from the stored state computes what the
+//! The stored order is the cells' (x fastest), whatever the memory layout
+//! ([`super::Layout`]). Read back, gas and wall cells get the populations of
+//! rest (f_i = w_i, stored 0, written nowhere: `memory.rs`) and zero mass. A run continued from the stored state computes what the
 //! uninterrupted run computes, bit for bit (the test below; a resumed
 //! coupled run in `tests/tests/resume.rs`). Every gas and wall cell of a
 //! running lattice holds exactly these values (conversions write them).
@@ -19,9 +20,9 @@
 use serde::ser::{SerializeSeq, SerializeStruct};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use super::{flags, Faces, FluidState};
+use super::{flags, Faces, FluidState, Layout};
 use crate::lattice::Q;
-use crate::memory::huge_vec;
+use crate::memory::sparse_zeroed;
 use crate::real::Real;
 
 /// Runs of equal flags, x fastest: (flag, run length).
@@ -36,21 +37,22 @@ fn flag_runs(cells: &[u8]) -> Vec<(u8, u32)> {
     runs
 }
 
-/// The liquid cells' values of a cell-indexed array, `Q` blocks of
-/// `ncells` or one: block by block, cell by cell.
+/// The values at `slots` of `values`, `blocks` times with the slots moved
+/// `stride` further each time: population by population (stride
+/// [`Layout::segment`]), or the masses (one block).
 struct LiquidValues<'a, V> {
     values: &'a [V],
-    ncells: usize,
-    liquid: &'a [u32],
+    slots: &'a [usize],
+    blocks: usize,
+    stride: usize,
 }
 
 impl<V: Serialize> Serialize for LiquidValues<'_, V> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let blocks = self.values.len() / self.ncells.max(1);
-        let mut seq = s.serialize_seq(Some(blocks * self.liquid.len()))?;
-        for block in self.values.chunks_exact(self.ncells.max(1)) {
-            for &c in self.liquid {
-                seq.serialize_element(&block[c as usize])?;
+        let mut seq = s.serialize_seq(Some(self.blocks * self.slots.len()))?;
+        for b in 0..self.blocks {
+            for &k in self.slots {
+                seq.serialize_element(&self.values[k + b * self.stride])?;
             }
         }
         seq.end()
@@ -60,13 +62,18 @@ impl<V: Serialize> Serialize for LiquidValues<'_, V> {
 impl<T: Real> Serialize for FluidState<T> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         let ncells = self.flags.len();
-        let liquid: Vec<u32> = (0..ncells).filter(|&c| flags::is_liquid(self.flags[c])).map(|c| c as u32).collect();
+        let liquid: Vec<usize> = (0..ncells).filter(|&c| flags::is_liquid(self.flags[c])).collect();
+        let layout = self.layout();
+        let bases: Vec<usize> = liquid.iter().map(|&c| layout.base(c)).collect();
         let mut st = s.serialize_struct("FluidState", 8)?;
         st.serialize_field("dims", &self.dims)?;
         st.serialize_field("faces", &self.faces)?;
         st.serialize_field("flag_runs", &flag_runs(&self.flags))?;
-        st.serialize_field("populations", &LiquidValues { values: &self.populations, ncells, liquid: &liquid })?;
-        st.serialize_field("mass", &LiquidValues { values: &self.mass, ncells, liquid: &liquid })?;
+        st.serialize_field(
+            "populations",
+            &LiquidValues { values: &self.populations, slots: &bases, blocks: Q, stride: layout.segment() },
+        )?;
+        st.serialize_field("mass", &LiquidValues { values: &self.mass, slots: &liquid, blocks: 1, stride: 0 })?;
         st.serialize_field("pending_excess", &self.pending_excess)?;
         st.serialize_field("reference_mass", &self.reference_mass)?;
         st.serialize_field("step", &self.step)?;
@@ -126,28 +133,40 @@ impl<'de, T: Real> Deserialize<'de> for FluidState<T> {
                 stored.mass.len()
             )));
         }
-        let mut populations = huge_vec(Q * ncells, |_| T::ZERO);
-        for (i, block) in populations.chunks_exact_mut(ncells.max(1)).enumerate() {
-            let from = &stored.populations[i * liquid.len()..(i + 1) * liquid.len()];
-            for (&c, &f) in liquid.iter().zip(from) {
-                block[c] = f;
-            }
-        }
-        let mut mass = huge_vec(ncells, |_| 0.0);
-        for (&c, &m) in liquid.iter().zip(&stored.mass) {
-            mass[c] = m;
-        }
         Ok(FluidState {
             dims: stored.dims,
             faces: stored.faces,
+            populations: liquid_populations(stored.dims, &liquid, |i, k| stored.populations[i * liquid.len() + k]),
+            mass: liquid_masses(ncells, &liquid, |k| stored.mass[k]),
             flags: cells,
-            populations,
-            mass,
             pending_excess: stored.pending_excess,
             reference_mass: stored.reference_mass,
             step: stored.step,
         })
     }
+}
+
+/// A lattice's populations with `value(i, k)` for population i of the k-th
+/// of the `liquid` cells and 0 (rest) elsewhere, written only there.
+fn liquid_populations<T: Real>(dims: [usize; 3], liquid: &[usize], value: impl Fn(usize, usize) -> T) -> Vec<T> {
+    let layout = Layout::new(dims);
+    let mut populations = sparse_zeroed(layout.len());
+    for (k, &c) in liquid.iter().enumerate() {
+        let base = layout.base(c);
+        for i in 0..Q {
+            populations[base + i * layout.segment()] = value(i, k);
+        }
+    }
+    populations
+}
+
+/// The masses of the `liquid` cells (`value(k)`), 0 elsewhere, written only there.
+fn liquid_masses(ncells: usize, liquid: &[usize], value: impl Fn(usize) -> f64) -> Vec<f64> {
+    let mut mass = sparse_zeroed(ncells);
+    for (k, &c) in liquid.iter().enumerate() {
+        mass[c] = value(k);
+    }
+    mass
 }
 
 /// The layout of `/lbm/state` version 1 (sessions before 28): every
@@ -164,18 +183,34 @@ pub(crate) struct DenseV1<T> {
     step: u64,
 }
 
-impl<T> From<DenseV1<T>> for FluidState<T> {
-    fn from(v: DenseV1<T>) -> Self {
-        FluidState {
+impl<T: Real> TryFrom<DenseV1<T>> for FluidState<T> {
+    type Error = String;
+
+    /// Version 1 held population i of cell c at `i * ncells + c`; the
+    /// liquid cells' values are moved to the current layout, gas and wall
+    /// cells read back as rest, as a version 2 state does.
+    fn try_from(v: DenseV1<T>) -> Result<Self, String> {
+        let ncells = v.dims.iter().try_fold(1usize, |n, &d| n.checked_mul(d)).unwrap_or(usize::MAX);
+        if v.flags.len() != ncells || v.mass.len() != ncells || Some(v.populations.len()) != ncells.checked_mul(Q) {
+            return Err(format!(
+                "a version 1 lattice of dims {:?} needs {ncells} flags and masses and {Q} populations per cell, got {}, {} and {}",
+                v.dims,
+                v.flags.len(),
+                v.mass.len(),
+                v.populations.len()
+            ));
+        }
+        let liquid: Vec<usize> = (0..ncells).filter(|&c| flags::is_liquid(v.flags[c])).collect();
+        Ok(FluidState {
             dims: v.dims,
             faces: v.faces,
+            populations: liquid_populations(v.dims, &liquid, |i, k| v.populations[i * ncells + liquid[k]]),
+            mass: liquid_masses(ncells, &liquid, |k| v.mass[liquid[k]]),
             flags: v.flags,
-            populations: v.populations,
-            mass: v.mass,
             pending_excess: v.pending_excess,
             reference_mass: v.reference_mass,
             step: v.step,
-        }
+        })
     }
 }
 
@@ -225,7 +260,7 @@ mod tests {
                 liquid += 1;
                 assert_eq!(back.mass[c], state.mass[c]);
                 for i in 0..Q {
-                    assert_eq!(back.populations[i * n + c].to_bits(), state.populations[i * n + c].to_bits());
+                    assert_eq!(back.population(i, c).to_bits(), state.population(i, c).to_bits());
                 }
             } else {
                 gas += 1;
@@ -247,7 +282,7 @@ mod tests {
         for c in (0..n).filter(|&c| flags::is_liquid(a.flags[c])) {
             assert_eq!(a.mass[c].to_bits(), b.mass[c].to_bits(), "mass of cell {c}");
             for i in 0..Q {
-                assert_eq!(a.populations[i * n + c].to_bits(), b.populations[i * n + c].to_bits(), "f_{i} of cell {c}");
+                assert_eq!(a.population(i, c).to_bits(), b.population(i, c).to_bits(), "f_{i} of cell {c}");
             }
         }
         assert_eq!(run.liquid_mass().to_bits(), resumed.liquid_mass().to_bits());

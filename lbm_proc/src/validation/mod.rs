@@ -216,8 +216,8 @@ fn settled(blocks: &[f64], window: usize, tolerance: f64) -> bool {
 /// Σ_c Σ_i f_i e_ix of the stored populations.
 fn momentum_x(lattice: &Fluid<f64>) -> f64 {
     let n = lattice.ncells();
-    let f = &lattice.state().populations;
-    (0..Q).filter(|&i| E[i][0] != 0).map(|i| E[i][0] as f64 * f[i * n..(i + 1) * n].iter().sum::<f64>()).sum()
+    let f = lattice.state();
+    (0..Q).filter(|&i| E[i][0] != 0).map(|i| E[i][0] as f64 * (0..n).map(|c| f.population(i, c)).sum::<f64>()).sum()
 }
 
 fn lattice_units() -> Units {
