@@ -143,7 +143,7 @@ impl<T: Real> Kernel<'_, T> {
         while x0 < end {
             // A chunk never spans two segments (layout.rs).
             let segment = self.layout.segment();
-            let n = (segment - x0 % segment).min(end - x0);
+            let n = (segment - (x0 & (segment - 1))).min(end - x0);
             let own = row_start + x0;
             // Forced cells before this chunk lie outside the liquid span or in skipped chunks.
             let skipped = k + self.forced[k..k_end].iter().take_while(|c| c.cell < own).count();
@@ -519,9 +519,10 @@ impl<T: Real> Kernel<'_, T> {
         // Lanes whose source x lies outside this chunk's segment: lane 0 for
         // e_x = +1 at a segment's start, lane n−1 for e_x = −1 at its end;
         // off the row's ends they wrap or bounce back.
-        let segment = layout.segment();
-        let lo = usize::from(e[0] == 1 && x0 % segment == 0);
-        let hi = if e[0] == -1 && ((x0 + n) % segment == 0 || x0 + n == nx) { n - 1 } else { n };
+        // The segment length is a power of two: `& mask` is `% segment`.
+        let mask = layout.segment() - 1;
+        let lo = usize::from(e[0] == 1 && x0 & mask == 0);
+        let hi = if e[0] == -1 && ((x0 + n) & mask == 0 || x0 + n == nx) { n - 1 } else { n };
         if hi > lo {
             let start = layout.at(i, source_row, ((x0 + lo) as isize - e[0] as isize) as usize);
             copy_lanes(&mut dst[lo..hi], &src[start..start + (hi - lo)]);
