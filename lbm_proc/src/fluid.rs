@@ -38,7 +38,7 @@
 use rayon::prelude::*;
 use runtime::isa::Isa;
 
-use crate::memory::sparse_zeroed;
+use crate::memory::{release_zeros, sparse_zeroed};
 use schemas::scene::ForcingGain;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -246,6 +246,11 @@ impl<T: Real> FluidState<T> {
     }
 }
 
+/// Steps between two [`Fluid::release_dry_memory`]: the lab column's
+/// liquid moves a few cells in that time, and a release costs a pass over
+/// the flags (~5 ms on the lab column).
+pub const RELEASE_EVERY: u64 = 500;
+
 /// Row classes (bits of `Scratch::rows`).
 /// The row holds a fluid or interface cell; rows without are skipped.
 const ROW_ANY_LIQUID: u8 = 1;
@@ -289,6 +294,8 @@ struct Scratch<T> {
     returned_mass: f64,
     /// Conversion work lists, reused every step.
     lists: free_surface::Lists,
+    /// Per segment, whether it holds no liquid ([`Fluid::release_dry_memory`]).
+    dry_segments: Vec<bool>,
     /// Direct forcing for the next steps and what it did in the last one.
     forcing: forcing::Forcing,
 }
@@ -389,6 +396,11 @@ impl<T: Real> Fluid<T> {
     }
 
     /// Continues from a saved state.
+    ///
+    /// Pre: gas and wall cells hold 0 in `populations` and `mass` (what a
+    /// stored state reads back as and every step leaves them with; checked
+    /// in debug builds). The memory of a box's gas is never written, and
+    /// [`Fluid::release_dry_memory`] relies on it.
     pub fn from_state(state: FluidState<T>, params: FluidParams) -> Result<Self, ConfigError> {
         params.validate()?;
         let [nx, ny, nz] = state.dims;
@@ -416,6 +428,11 @@ impl<T: Real> Fluid<T> {
         if !state.pending_excess.is_finite() || state.mass.iter().any(|m| !m.is_finite()) {
             return Err(ConfigError::State("liquid masses must be finite".into()));
         }
+        debug_assert!(
+            (0..ncells).filter(|&c| !flags::is_liquid(state.flags[c])).all(|c| state.mass[c].to_bits() == 0
+                && (0..Q).all(|i| state.population(i, c).to_f64().to_bits() == 0)),
+            "a gas or wall cell of the state holds a value (they must hold 0)"
+        );
         let scratch = Scratch {
             // The step writes every liquid cell of `next` before it is read;
             // gas and wall cells hold 0 in both lattices.
@@ -430,6 +447,7 @@ impl<T: Real> Fluid<T> {
             pending_returned: 0,
             returned_mass: 0.0,
             lists: Default::default(),
+            dry_segments: Vec::new(),
             forcing: Default::default(),
         };
         let mut fluid = Fluid {
@@ -565,7 +583,8 @@ impl<T: Real> Fluid<T> {
             let v = T::from_f64(g[i]);
             for lattice in [&mut self.state.populations, &mut self.scratch.next] {
                 let slot = &mut lattice[base + i * layout.segment()];
-                if *slot != v {
+                // Compared bit for bit: -0 is not +0.
+                if slot.to_f64().to_bits() != v.to_f64().to_bits() {
                     *slot = v;
                 }
             }
@@ -810,7 +829,43 @@ impl<T: Real> Fluid<T> {
         if !self.scratch.interface.is_empty() {
             self.update_surface();
         }
+        if self.state.step.is_multiple_of(RELEASE_EVERY) {
+            self.release_dry_memory();
+        }
         self.stage_seconds.update_surface += t0.elapsed().as_secs_f64();
+    }
+
+    /// Gives back the memory of the segments that hold no liquid (both
+    /// lattices): a segment the liquid has left holds only zeros (gas and
+    /// wall cells hold 0), so its whole pages are handed back and read as
+    /// zeros again ([`crate::memory::release_zeros`]); pages shared with a
+    /// segment that has liquid stay. Changes no value: a run that releases
+    /// and one that does not compute the same bits. Runs by itself every
+    /// [`RELEASE_EVERY`] steps.
+    pub fn release_dry_memory(&mut self) {
+        let layout = self.state.layout();
+        let nx = self.state.dims[0];
+        let flags = &self.state.flags;
+        let dry = &mut self.scratch.dry_segments;
+        dry.resize(layout.segment_count(), false);
+        dry.par_iter_mut().enumerate().with_min_len(1024).for_each(|(k, dry)| {
+            let (row, xs) = layout.segment_cells(k);
+            *dry = !flags[row * nx + xs.start..row * nx + xs.end].iter().any(|&f| flags::is_liquid(f));
+        });
+        let mut k = 0;
+        while k < dry.len() {
+            if !dry[k] {
+                k += 1;
+                continue;
+            }
+            let first = k;
+            while k < dry.len() && dry[k] {
+                k += 1;
+            }
+            let elements = layout.segment_elements(first).start..layout.segment_elements(k - 1).end;
+            release_zeros(&mut self.state.populations, elements.clone());
+            release_zeros(&mut self.scratch.next, elements);
+        }
     }
 
     /// Recomputes the row classes after flags changed.

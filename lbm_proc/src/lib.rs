@@ -10,7 +10,7 @@
 //! * [`watchdog`]: the stability check with a typed diagnosis;
 //! * [`run`]: a whole fluid-only run: gates, frames, MCAP, summary;
 //! * [`setup`]: a checked scene (SI) on the lattice: box, units, gates, liquid;
-//! * [`memory`]: the lattice arrays on huge pages (fewer TLB misses);
+//! * [`memory`]: lattice arrays backed by memory only where written (the liquid's);
 //! * [`real`]: the population float type (f32 default, f64 for comparison);
 //! * [`bench`](mod@bench): bulk throughput and memory bandwidth measurement;
 //! * [`validation`]: the coupling's validation cases (sphere arrays, packed

@@ -14,11 +14,18 @@ use crate::Units;
 /// only used to estimate a duration.
 pub const MEASURED_LBM_RATE: f64 = 4.0e7;
 
-/// Two lattices of 19 populations of `population_bytes` each, flags, f64
-/// mass and fill per cell.
-fn bytes_per_cell(population_bytes: usize) -> f64 {
-    19.0 * population_bytes as f64 * 2.0 + 1.0 + 16.0
+/// Two lattices of 19 populations of `population_bytes` each, f64 mass and
+/// fill per cell where the liquid is (the flags are dense, one byte per cell).
+fn bytes_per_liquid_cell(population_bytes: usize) -> f64 {
+    19.0 * population_bytes as f64 * 2.0 + 16.0
 }
+
+/// Memory per cell of the liquid's rows at the start (its x-extent rounded
+/// up to whole segments of 128 cells), over [`bytes_per_liquid_cell`]: the
+/// liquid spreading, the pages segments straddle, the f64 arrays' page per
+/// row. Calibrated on the coupled lab column (lbm_proc 572 MB at 0.05 s,
+/// docs/BENCHMARKS.md "The sparse lattice").
+const SPREAD_FACTOR: f64 = 3.0;
 
 /// The LBM's plan for `scene` (which has fluid blocks and an `[lbm]` table).
 pub fn plan(scene: &Scene) -> Plan {
@@ -44,7 +51,17 @@ pub fn plan(scene: &Scene) -> Plan {
     p.steps = (s.output.end_time / dt).ceil() as u64;
     p.work = p.steps as f64 * liquid;
     let population_bytes = lbm.precision.bytes();
-    p.memory = ncells * bytes_per_cell(population_bytes);
+    // Memory follows the liquid (fluid/layout.rs): its rows, in segments.
+    let liquid_rows: f64 = s
+        .fluids
+        .iter()
+        .map(|f| {
+            let x = cells(f.region.min[0], f.region.max[0]);
+            let rows = cells(f.region.min[1], f.region.max[1]) * cells(f.region.min[2], f.region.max[2]);
+            rows * (x / 128.0).ceil() * 128.0
+        })
+        .sum();
+    p.memory = liquid_rows.min(ncells) * SPREAD_FACTOR * bytes_per_liquid_cell(population_bytes) + ncells;
     // The kernel is bound by memory traffic, which the population size sets.
     p.wall_estimate = p.work / MEASURED_LBM_RATE * (population_bytes as f64 / 4.0);
     p.line(

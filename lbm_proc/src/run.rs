@@ -562,7 +562,8 @@ impl<T: Real> Solver for LbmRun<'_, T> {
 
     fn record_state(&mut self, rec: &mut Recording) -> Result<(), RunError> {
         if let (Some(r), Some(ch)) = (rec.recorder(), self.channels.as_ref()) {
-            // Borrowed, not cloned: the dense lattice is 1.6 GB on the lab column.
+            // Borrowed, not cloned: a clone would back the whole box (1.6 GB on
+            // the lab column), where the lattice backs only the liquid's pages.
             let state = LbmStateRef {
                 version: STATE_VERSION,
                 time: self.time,

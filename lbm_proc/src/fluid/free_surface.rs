@@ -307,7 +307,7 @@ impl<T: Real> Fluid<T> {
                     // A fluid cell's mass is its density: its slot stays 0 (and unbacked).
                     if self.state.flags[c] == flags::INTERFACE {
                         self.state.mass[c] = 0.5 * rho;
-                    } else if self.state.mass[c] != 0.0 {
+                    } else if self.state.mass[c].to_bits() != 0 {
                         self.state.mass[c] = 0.0;
                     }
                 }

@@ -34,8 +34,9 @@ pub const SEGMENT: usize = super::LANES;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Layout {
     nx: usize,
-    /// Cells per segment, a power of two ≤ [`SEGMENT`].
+    /// Cells per segment, a power of two ≤ [`SEGMENT`], and its log2.
     segment: usize,
+    shift: u32,
     segments: usize,
     rows: usize,
 }
@@ -44,7 +45,13 @@ impl Layout {
     /// The layout of a box of `dims` cells (x fastest).
     pub fn new(dims: [usize; 3]) -> Self {
         let segment = dims[0].next_power_of_two().min(SEGMENT);
-        Layout { nx: dims[0], segment, segments: dims[0].div_ceil(segment), rows: dims[1] * dims[2] }
+        Layout {
+            nx: dims[0],
+            segment,
+            shift: segment.trailing_zeros(),
+            segments: dims[0].div_ceil(segment),
+            rows: dims[1] * dims[2],
+        }
     }
 
     /// Cells per segment, and the distance between two populations of one cell.
@@ -59,6 +66,22 @@ impl Layout {
         self.rows * self.segments * Q * self.segment
     }
 
+    /// Segments in the box (rows × segments per row), in memory order.
+    pub fn segment_count(&self) -> usize {
+        self.rows * self.segments
+    }
+
+    /// Cells of segment `k` (memory order): its row and its x-range.
+    pub fn segment_cells(&self, k: usize) -> (usize, std::ops::Range<usize>) {
+        let x0 = (k % self.segments) * self.segment;
+        (k / self.segments, x0..(x0 + self.segment).min(self.nx))
+    }
+
+    /// Elements of segment `k`'s populations: `k · Q · S ..` one segment further.
+    pub fn segment_elements(&self, k: usize) -> std::ops::Range<usize> {
+        k * Q * self.segment..(k + 1) * Q * self.segment
+    }
+
     /// Whether the box has no cells.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
@@ -67,8 +90,8 @@ impl Layout {
     /// Population `i` of the cell at `x` in x-row `row` (`z · ny + y`).
     #[inline(always)]
     pub fn at(&self, i: usize, row: usize, x: usize) -> usize {
-        // The segment is a power of two: the division and remainder are a shift and a mask.
-        ((row * self.segments + x / self.segment) * Q + i) * self.segment + x % self.segment
+        // The segment is a power of two: a shift and a mask, not a division.
+        (((row * self.segments + (x >> self.shift)) * Q + i) << self.shift) + (x & (self.segment - 1))
     }
 
     /// Population `i` of cell index `c` (x fastest).

@@ -114,7 +114,7 @@ impl<'de, T: Real> Deserialize<'de> for FluidState<T> {
         // The dims are claimed, not backed by data (gas is not stored): a
         // damaged state must not abort on an impossible allocation.
         let mut probe: Vec<T> = Vec::new();
-        if probe.try_reserve_exact(Q * ncells).is_err() {
+        if probe.try_reserve_exact(Layout::new(stored.dims).len()).is_err() {
             return Err(D::Error::custom(format!("a lattice of {ncells} cells does not fit in memory")));
         }
         drop(probe);
