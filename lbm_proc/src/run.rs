@@ -446,7 +446,7 @@ fn read_checkpoint<T: Real>(
             .into());
         }
     }
-    Ok(checkpoint::read_solver(path, "lbm_proc", scene, "its lattice").map_err(RecordError::from)?)
+    Ok(checkpoint::decode_solver(file, path, "its lattice").map_err(RecordError::from)?)
 }
 
 /// The lattice as the run driver steps it.

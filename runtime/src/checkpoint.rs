@@ -320,12 +320,22 @@ pub fn read_solver<T: serde::de::DeserializeOwned>(
     scene: &schemas::Scene,
     what: &str,
 ) -> Result<(CheckpointFile, T), CheckpointError> {
-    let file = read(path, process, scene)?;
+    decode_solver(read(path, process, scene)?, path, what)
+}
+
+/// Decodes the solver part of `file`, read from `path` by [`read`] (a
+/// caller that looks into the file before decoding reads it once);
+/// `what` as in [`read_solver`].
+pub fn decode_solver<T: serde::de::DeserializeOwned>(
+    file: CheckpointFile,
+    path: &Path,
+    what: &str,
+) -> Result<(CheckpointFile, T), CheckpointError> {
     let solver =
         bincode::serde::decode_from_slice(&file.solver, bincode::config::standard()).map(|(c, _)| c).map_err(|e| {
             CheckpointError::Damaged {
                 path: path.to_path_buf(),
-                why: format!("{what} does not decode ({e}): written by another version of {process}?"),
+                why: format!("{what} does not decode ({e}): written by another version of {}?", file.process),
             }
         })?;
     Ok((file, solver))
