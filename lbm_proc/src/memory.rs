@@ -54,7 +54,9 @@ fn no_huge_pages(ptr: *const u8, len: usize) {
 /// until written again).
 ///
 /// Pre: every element of `values[range]` is zero (all bits clear), so no
-/// value changes; checked in debug builds. Elsewhere than Linux: nothing.
+/// value changes (checked in debug builds), and `values` is memory of the
+/// allocator (anonymous, as a `Vec`'s is: a file mapping's pages would
+/// revert to the file). Elsewhere than Linux: nothing.
 pub fn release_zeros<T: Real>(values: &mut [T], range: std::ops::Range<usize>) {
     let values = &mut values[range];
     debug_assert!(values.iter().all(|v| v.to_f64().to_bits() == 0), "release_zeros over non-zero values");
@@ -106,7 +108,7 @@ mod tests {
         let n = 64 << 20; // 256 MiB of f32
         let mut v: Vec<f32> = sparse_zeroed(n);
         assert_eq!(v.len(), n);
-        // One value every 16 MiB from 4 MiB on: 15 pages written. (The
+        // One value every 16 MiB from 4 MiB on: 16 pages written. (The
         // first 4 MiB are left out: where huge pages are always on, the
         // allocator's header write may back a 2 MiB page there before the
         // advice.)

@@ -21,11 +21,11 @@ fn bytes_per_liquid_cell(population_bytes: usize) -> f64 {
 }
 
 /// Memory per cell of the liquid's rows at the start (its x-extent rounded
-/// up to whole segments of 128 cells), over [`bytes_per_liquid_cell`]: the
+/// up to whole segments), over [`bytes_per_liquid_cell`]: the
 /// liquid spreading, the pages segments straddle, the f64 arrays' page per
-/// row. Calibrated on the coupled lab column (lbm_proc 572 MB at 0.05 s,
-/// docs/BENCHMARKS.md "The sparse lattice").
-const SPREAD_FACTOR: f64 = 3.0;
+/// row. Calibrated on the peak of the whole coupled lab column (lbm_proc
+/// 707 MB; 572 MB at 0.05 s; docs/BENCHMARKS.md "The sparse lattice").
+const SPREAD_FACTOR: f64 = 3.8;
 
 /// The LBM's plan for `scene` (which has fluid blocks and an `[lbm]` table).
 pub fn plan(scene: &Scene) -> Plan {
@@ -52,16 +52,20 @@ pub fn plan(scene: &Scene) -> Plan {
     p.work = p.steps as f64 * liquid;
     let population_bytes = lbm.precision.bytes();
     // Memory follows the liquid (fluid/layout.rs): its rows, in segments.
+    let layout = crate::fluid::Layout::new(dims.map(|n| n as usize));
+    let segment = layout.segment() as f64;
     let liquid_rows: f64 = s
         .fluids
         .iter()
         .map(|f| {
             let x = cells(f.region.min[0], f.region.max[0]);
             let rows = cells(f.region.min[1], f.region.max[1]) * cells(f.region.min[2], f.region.max[2]);
-            rows * (x / 128.0).ceil() * 128.0
+            rows * (x / segment).ceil() * segment
         })
         .sum();
-    p.memory = liquid_rows.min(ncells) * SPREAD_FACTOR * bytes_per_liquid_cell(population_bytes) + ncells;
+    // At most the whole box's arrays (rows padded to whole segments).
+    let padded = (layout.len() / crate::lattice::Q) as f64;
+    p.memory = (liquid_rows * SPREAD_FACTOR).min(padded) * bytes_per_liquid_cell(population_bytes) + ncells;
     // The kernel is bound by memory traffic, which the population size sets.
     p.wall_estimate = p.work / MEASURED_LBM_RATE * (population_bytes as f64 / 4.0);
     p.line(

@@ -7,8 +7,10 @@
 //! at `((r · segments + s) · Q + i) · S + x mod S`. S is [`SEGMENT`], or the
 //! power of two at or above nx where rows are shorter (a 64-cell row padded
 //! to 128 left half of every population run empty, and the bulk kernel
-//! lost 16 %). A segment of 128 cells is 9.7 kB of f32, so the pages of memory a lattice occupies are those of the
-//! segments that ever held liquid: the array is allocated zeroed and never
+//! lost 16 %). A segment of 128 cells is 9.7 kB of f32, so the pages of
+//! memory a lattice occupies are those of the segments that hold liquid
+//! (or held it since the last release of dry segments,
+//! `Fluid::release_dry_memory`): the array is allocated zeroed and never
 //! written in the gas (`memory::sparse_zeroed`), and the operating system
 //! backs only the pages touched. The page table is the block table, as in
 //! SPGrid (Setaluri, Aanjaneya, Bauer & Sifakis 2014, ACM TOG 33(6) 205);
