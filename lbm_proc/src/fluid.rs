@@ -1047,14 +1047,26 @@ fn link_offset(e: [i32; 3], nx: usize, ny: usize) -> isize {
     e[0] as isize + e[1] as isize * nx as isize + e[2] as isize * (nx * ny) as isize
 }
 
-/// `dst.copy_from_slice(src)`, inlined as vector moves for the common full
-/// chunk (a variable-length copy would call `memmove` 38 times per chunk).
+/// `dst.copy_from_slice(src)`, inlined as vector moves: a variable-length
+/// copy calls `memmove` (38 times per chunk), which took 16–23 % of the
+/// free-surface column's time, whose chunks are mostly partial (a liquid
+/// span's ends, a segment's).
 #[inline(always)]
 fn copy_lanes<T: Copy>(dst: &mut [T], src: &[T]) {
     if let (Ok(d), Ok(s)) = (<&mut [T; LANES]>::try_from(&mut *dst), <&[T; LANES]>::try_from(src)) {
         *d = *s;
-    } else {
-        dst.copy_from_slice(src);
+        return;
+    }
+    assert_eq!(dst.len(), src.len());
+    let mut d = dst.chunks_exact_mut(8);
+    let mut s = src.chunks_exact(8);
+    for (d, s) in (&mut d).zip(&mut s) {
+        // Fixed-size blocks: moves, not a call.
+        let d: &mut [T; 8] = d.try_into().expect("8 lanes");
+        *d = s.try_into().expect("8 lanes");
+    }
+    for (d, s) in d.into_remainder().iter_mut().zip(s.remainder()) {
+        *d = *s;
     }
 }
 
