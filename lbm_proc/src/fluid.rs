@@ -342,34 +342,18 @@ struct Coefficients<T> {
 impl<T: Real> Fluid<T> {
     /// A box of fluid cells at rest (u = 0 under the body force), ρ = 1.
     pub fn new(dims: [usize; 3], faces: [Faces; 3], params: FluidParams) -> Result<Self, ConfigError> {
-        params.validate()?;
-        let ncells = dims[0]
-            .checked_mul(dims[1])
-            .and_then(|n| n.checked_mul(dims[2]))
-            .filter(|&n| n > 0 && n.checked_mul(Q).is_some())
-            .ok_or(ConfigError::Dims(dims))?;
+        params.validate()?; // before the fill writes the whole box
+        let mut state = Self::blank(dims, faces, flags::FLUID)?;
         let rest = crate::lattice::equilibrium(1.0, params.acceleration.map(|a| 0.5 * a));
         let rest: [T; Q] = std::array::from_fn(|i| T::from_f64(rest[i] - W[i]));
-        let layout = Layout::new(dims);
-        let mut populations = sparse_zeroed(layout.len());
-        let (length, segments) = (layout.segment(), dims[0].div_ceil(layout.segment()));
-        populations.par_chunks_mut(Q * length).enumerate().for_each(|(k, segment)| {
-            // The cells of the segment (the row's last one is padded with zeros).
-            let cells = (dims[0] - (k % segments) * length).min(length);
-            for (i, run) in segment.chunks_exact_mut(length).enumerate() {
+        let layout = state.layout();
+        state.populations.par_chunks_mut(Q * layout.segment()).enumerate().for_each(|(k, segment)| {
+            // The segment's cells (the padding of a row's last one stays 0).
+            let cells = layout.segment_cells(k).1.len();
+            for (i, run) in segment.chunks_exact_mut(layout.segment()).enumerate() {
                 run[..cells].fill(rest[i]);
             }
         });
-        let state = FluidState {
-            dims,
-            faces,
-            flags: vec![flags::FLUID; ncells],
-            populations,
-            mass: sparse_zeroed(ncells),
-            pending_excess: 0.0,
-            reference_mass: None,
-            step: 0,
-        };
         Self::from_state(state, params)
     }
 
@@ -377,23 +361,27 @@ impl<T: Real> Fluid<T> {
     /// written to the populations, so set-up costs memory and time only
     /// where the liquid is put (`memory.rs`).
     pub fn empty(dims: [usize; 3], faces: [Faces; 3], params: FluidParams) -> Result<Self, ConfigError> {
-        params.validate()?;
+        Self::from_state(Self::blank(dims, faces, flags::GAS)?, params)
+    }
+
+    /// A state of `dims` cells all flagged `flag`, populations and masses 0
+    /// (allocated, not written).
+    fn blank(dims: [usize; 3], faces: [Faces; 3], flag: u8) -> Result<FluidState<T>, ConfigError> {
         let ncells = dims[0]
             .checked_mul(dims[1])
             .and_then(|n| n.checked_mul(dims[2]))
             .filter(|&n| n > 0 && n.checked_mul(Q).is_some())
             .ok_or(ConfigError::Dims(dims))?;
-        let state = FluidState {
+        Ok(FluidState {
             dims,
             faces,
-            flags: vec![flags::GAS; ncells],
+            flags: vec![flag; ncells],
             populations: sparse_zeroed(Layout::new(dims).len()),
             mass: sparse_zeroed(ncells),
             pending_excess: 0.0,
             reference_mass: None,
             step: 0,
-        };
-        Self::from_state(state, params)
+        })
     }
 
     /// Continues from a saved state.
