@@ -313,6 +313,8 @@ fn run_on_pool(
         }
     };
     let end_time = out.end_time;
+    // The collapse's stage split for the summary (a few clock reads a step).
+    solver.mpm.timing = true;
     let result = drive(
         &mut solver,
         None,
@@ -507,6 +509,7 @@ fn summary(r: &mut MpmRun<'_>, end: &RunEnd) -> RunSummary {
             quadratic_drag: mpm.params.drag.quadratic,
             recording_fraction: end.recording_seconds / wall.max(1e-9),
             threads: rayon::current_num_threads(),
+            stage_seconds: schemas::summary::stage_seconds_map(&mpm.stage_seconds),
         }),
         wall_seconds_total: None,
         wall_seconds_lbm: None,

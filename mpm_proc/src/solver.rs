@@ -342,12 +342,27 @@ pub struct Fixities {
     pub contact: Vec<[f64; 2]>,
 }
 
-/// Wall seconds per stage, summed over the run.
+/// Wall seconds per stage of [`Mpm::step`], summed over the steps taken
+/// with [`Mpm::timing`] on (the `bench` subcommand's split).
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct StageSeconds {
+    /// Stencils, elements, bins and element sums of both point sets.
     pub locate: f64,
+    /// Points to grid (mass, momentum, volumes) and the porosity fields.
     pub map: f64,
-    pub forces: f64,
+    /// Per-point stress, drag and porosity terms.
+    pub prepare_forces: f64,
+    /// Nodal forces, damping, drag and accelerations.
+    pub solve_nodes: f64,
+    /// The implicit pore pressure: reference, assembly, solve, corrector.
+    pub pressure: f64,
+    /// Coulomb friction on the walls.
+    pub wall_friction: f64,
+    /// Grid to points: the points' velocities.
+    pub update_velocities: f64,
+    /// The points' momenta mapped again and the nodal velocities (MUSL).
+    pub remap: f64,
+    /// Strains and stresses, volumes, pore pressure of the points.
     pub update_points: f64,
 }
 
@@ -548,14 +563,25 @@ impl Mpm {
     /// Advances one step of Δt.
     pub fn step(&mut self) {
         let implicit = self.params.implicit_pressure;
-        let t0 = self.timing.then(std::time::Instant::now);
+        let mut clock = self.timing.then(std::time::Instant::now);
+        // Adds the time since the last lap to one stage's total.
+        let mut lap = |total: &mut f64| {
+            if let Some(then) = clock.as_mut() {
+                let now = std::time::Instant::now();
+                *total += (now - *then).as_secs_f64();
+                *then = now;
+            }
+        };
+        let mut seconds = self.stage_seconds;
         self.locate();
-        let t1 = self.timing.then(std::time::Instant::now);
+        lap(&mut seconds.locate);
         self.map_to_grid();
         self.porosity_fields();
-        let t2 = self.timing.then(std::time::Instant::now);
+        lap(&mut seconds.map);
         self.prepare_forces();
+        lap(&mut seconds.prepare_forces);
         self.solve_nodes();
+        lap(&mut seconds.solve_nodes);
         if implicit {
             let started = std::time::Instant::now();
             self.pressure_reference();
@@ -565,26 +591,24 @@ impl Mpm {
             if let Some(i) = self.implicit.as_mut() {
                 i.stats.seconds += started.elapsed().as_secs_f64();
             }
+            lap(&mut seconds.pressure);
         }
         self.apply_wall_friction();
-        let t3 = self.timing.then(std::time::Instant::now);
+        lap(&mut seconds.wall_friction);
         self.update_velocities();
+        lap(&mut seconds.update_velocities);
         self.remap_momentum();
+        lap(&mut seconds.remap);
         self.volumetric_strain_per_element();
         self.update_points();
         if !implicit {
             self.reconstruct_pressure();
         }
         self.pore_pressure_peak = self.state.liquid.pressure.iter().fold(self.pore_pressure_peak, |m, &p| m.max(p));
+        lap(&mut seconds.update_points);
+        self.stage_seconds = seconds;
         self.state.time += self.params.dt;
         self.state.steps += 1;
-        if let (Some(t0), Some(t1), Some(t2), Some(t3)) = (t0, t1, t2, t3) {
-            let s = &mut self.stage_seconds;
-            s.locate += (t1 - t0).as_secs_f64();
-            s.map += (t2 - t1).as_secs_f64();
-            s.forces += (t3 - t2).as_secs_f64();
-            s.update_points += t3.elapsed().as_secs_f64();
-        }
     }
 
     /// Kinetic energy of the solid and of the liquid momenta as the grid

@@ -353,6 +353,12 @@ pub struct MpmDetails {
     #[serde(deserialize_with = "nan_if_null")]
     pub recording_fraction: f64,
     pub threads: usize,
+    /// Wall seconds in each stage of the step over the collapse (locate,
+    /// map, prepare_forces, solve_nodes, pressure, wall_friction,
+    /// update_velocities, remap, update_points; a resumed run's since the
+    /// resume); empty in summaries written before it existed.
+    #[serde(default)]
+    pub stage_seconds: std::collections::BTreeMap<String, f64>,
 }
 
 #[cfg(test)]
