@@ -219,6 +219,22 @@ struct NodeUpdate {
     drag: f64,
 }
 
+/// What the grid-to-points map reads at one node, gathered once per node
+/// and step (each node is read by ~10 points of each phase).
+#[derive(Debug, Clone, Copy, Default)]
+struct GridVelocity {
+    /// The end-of-step velocity of [solid, liquid], m/s (0 on fixed components).
+    v: [[f64; 2]; 2],
+    /// Acceleration of [solid, liquid], m/s².
+    a: [[f64; 2]; 2],
+    /// The node's position, m.
+    x: [f64; 2],
+    /// Per component: fixed (a wall or the gate).
+    fixed: [bool; 2],
+    /// On a frictional wall.
+    wall: bool,
+}
+
 /// Relative residual and iteration cap of the implicit pressure's PCG.
 const PRESSURE_TOLERANCE: f64 = 1e-8;
 const PRESSURE_MAX_ITERATIONS: usize = 2000;
@@ -388,6 +404,7 @@ pub struct Mpm {
     fill: Vec<f64>,
     /// Nodal accelerations and displacement increments, [solid, liquid].
     accel: Vec<NodeUpdate>,
+    grid_velocity: Vec<GridVelocity>,
     disp: Vec<[[f64; 2]; 2]>,
     liquid_fill: Vec<f64>,
     /// XPIC(2): S⁺v_g at the points of each set.
@@ -494,6 +511,7 @@ impl Mpm {
             solid_fraction: vec![0.0; nodes],
             fill: vec![0.0; nodes],
             accel: vec![NodeUpdate::default(); nodes],
+            grid_velocity: vec![GridVelocity::default(); nodes],
             disp: vec![[[0.0; 2]; 2]; nodes],
             liquid_fill: Vec::new(),
             xpic_points: [Vec::new(), Vec::new()],
@@ -1272,12 +1290,24 @@ impl Mpm {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
         let (accel, mask, contact) = (&self.accel, &self.mask, &self.fixities.contact);
-        let (vs, vl) = (&self.velocity_s, &self.velocity_l);
-        let (grid, shares) = (&self.grid, self.params.flip_share);
+        let (vs, vl, grid) = (&self.velocity_s, &self.velocity_l, &self.grid);
+        let mut nodes = std::mem::take(&mut self.grid_velocity);
+        self.for_active_nodes(&mut nodes, |node, out| {
+            let (a, m) = (accel[node].a, mask[node]);
+            let v = |v0: [f64; 2], acc: [f64; 2]| [m[0] * (v0[0] + dt * acc[0]), m[1] * (v0[1] + dt * acc[1])];
+            *out = GridVelocity {
+                v: [v(vs[node], a[0]), v(vl[node], a[1])],
+                a,
+                x: grid.node_position(node % row, node / row),
+                fixed: [m[0] == 0.0, m[1] == 0.0],
+                wall: contact[node] != [0.0; 2],
+            };
+        });
+        self.grid_velocity = nodes;
+        let (nodes, shares) = (&self.grid_velocity, self.params.flip_share);
         let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
             let beta = shares[phase];
             let blend = beta > 0.0;
-            let velocity = if phase == 0 { vs } else { vl };
             set.affine.resize(set.v.len(), [[0.0; 2]; 2]);
             set.v
                 .par_iter_mut()
@@ -1290,15 +1320,9 @@ impl Mpm {
                     let mut d = [[0.0; 2]; 2];
                     let mut flip = *v;
                     let mut held = [false; 2];
-                    // The stencil's nodes in order, l outer and j inner from
-                    // its base: their positions without a division per node.
-                    let (base, mut k) = (st.base as usize, 0usize);
-                    let (c0, r0) = (base % row, base / row);
                     st.for_each(row, |node, n, _| {
-                        let (acc, m, v0) = (accel[node].a[phase], mask[node], velocity[node]);
-                        let vi = [m[0] * (v0[0] + dt * acc[0]), m[1] * (v0[1] + dt * acc[1])];
-                        let xi = grid.node_position(c0 + k % 3, r0 + k / 3);
-                        k += 1;
+                        let g = &nodes[node];
+                        let (vi, acc, xi) = (g.v[phase], g.a[phase], g.x);
                         let r = [xi[0] - xp[0], xi[1] - xp[1]];
                         for a in 0..2 {
                             new_v[a] += n * vi[a];
@@ -1308,10 +1332,9 @@ impl Mpm {
                             }
                         }
                         if blend {
-                            let touches_wall = n > 0.0 && contact[node] != [0.0; 2];
                             for a in 0..2 {
                                 flip[a] += n * dt * acc[a];
-                                held[a] |= n > 0.0 && m[a] == 0.0 || touches_wall;
+                                held[a] |= n > 0.0 && (g.fixed[a] || g.wall);
                             }
                         }
                     });
