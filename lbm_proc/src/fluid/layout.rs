@@ -136,6 +136,39 @@ mod tests {
         }
     }
 
+    /// The segments' cells and element ranges (what the release of dry
+    /// memory and the rest fill walk) against the cell addressing: every
+    /// cell's populations lie in the elements of the one segment that
+    /// lists it, and the segments tile the array in memory order.
+    #[test]
+    fn segments_list_their_cells_and_own_their_elements() {
+        for dims in [[5, 3, 2], [64, 2, 2], [SEGMENT + 3, 2, 3], [3 * SEGMENT - 1, 1, 2]] {
+            let layout = Layout::new(dims);
+            let mut owner = vec![usize::MAX; layout.len()];
+            let mut next = 0;
+            for k in 0..layout.segment_count() {
+                let elements = layout.segment_elements(k);
+                assert_eq!(elements.start, next, "{dims:?}: segment {k} does not follow the one before");
+                next = elements.end;
+                let (row, xs) = layout.segment_cells(k);
+                assert!(!xs.is_empty() && xs.end <= dims[0]);
+                for x in xs {
+                    for i in 0..Q {
+                        let slot = layout.at(i, row, x);
+                        assert!(
+                            elements.contains(&slot),
+                            "{dims:?}: cell ({row}, {x}) population {i} outside segment {k}"
+                        );
+                        assert_eq!(std::mem::replace(&mut owner[slot], k), usize::MAX);
+                    }
+                }
+            }
+            assert_eq!(next, layout.len());
+            let cells = owner.iter().filter(|&&k| k != usize::MAX).count();
+            assert_eq!(cells, dims[0] * dims[1] * dims[2] * Q, "{dims:?}: every cell in exactly one segment");
+        }
+    }
+
     #[test]
     fn a_segment_holds_consecutive_cells_of_one_row() {
         let layout = Layout::new([2 * SEGMENT + 5, 3, 2]);
