@@ -396,6 +396,11 @@ impl PressureProblem {
         compressibility.extend(self.unknowns.iter().map(|&e| self.compressibility(e as usize)));
         self.unknown_compressibility = compressibility;
         self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            // Wrapped round to the value of never-stamped nodes.
+            self.node_stamp.fill(0);
+            self.stamp = 1;
+        }
         self.unknown_corners.clear();
         for st in &self.unknown_stencils {
             for node in st.nodes {
@@ -450,6 +455,7 @@ impl PressureProblem {
     /// [`Self::set_element`], before [`Self::index_elements`].
     pub fn set_fluid_modulus(&mut self, e: usize, k: f64) {
         debug_assert!(k > 0.0);
+        self.touched_elements.push(e as u32);
         self.fluid_modulus[e] = k;
         self.indexed = false;
     }
@@ -985,13 +991,23 @@ mod tests {
     }
 
     /// `reset` restores only what was set since the last one; a problem
-    /// reset after a full one and set again must act exactly (bit for bit)
-    /// as a fresh problem set the same way.
+    /// reset after others (fluid moduli set, K_L changed and back) and set
+    /// again must act exactly (bit for bit) as a fresh problem set the same
+    /// way, in every operator and every per-element figure.
     #[test]
     fn a_reset_problem_acts_as_a_fresh_one() {
         let mut random = Random(41);
         let (dt, k) = (1e-4, 2e7);
         let mut reused = random_problem(&mut random, 9, 6, dt, k);
+        reused.reset(dt, 0.5 * k);
+        set_some(&mut reused, &mut Random(3));
+        reused.reset(dt, k);
+        set_some(&mut reused, &mut Random(5));
+        // A modulus of its own on every element, set or not.
+        for e in 0..reused.grid().element_count() {
+            reused.set_fluid_modulus(e, 1e5);
+        }
+        reused.index_elements();
         reused.reset(dt, k);
         let grid = *reused.grid();
         let mut fresh = PressureProblem::new(grid, dt, k);
@@ -1002,8 +1018,11 @@ mod tests {
         assert!(!fresh.unknowns().is_empty() && !fresh.given.is_empty());
         let m = fresh.unknowns().len();
         let x: Vec<f64> = (0..m).map(|_| random.range(-1e4, 1e4)).collect();
+        let full: Vec<f64> = (0..grid.element_count()).map(|_| random.range(-1e4, 1e4)).collect();
         let vs = random.vectors(grid.node_count(), 0.1);
         let vl = random.vectors(grid.node_count(), 0.1);
+        let bits = |v: &[f64]| v.iter().map(|a| a.to_bits()).collect::<Vec<_>>();
+        let flat = |v: &[[f64; 2]]| bits(&v.concat());
         let results = [&reused, &fresh].map(|problem| {
             let mut force = forces(problem);
             let (mut y, mut b, mut diagonal) = (vec![0.0; m], vec![0.0; m], vec![0.0; m]);
@@ -1017,9 +1036,18 @@ mod tests {
             let (mut cs, mut cl) = (vs.clone(), vl.clone());
             problem.merge_solid_into_liquid(&mut cs, &cl);
             problem.correct_velocities(&pressure, &mut cs, &mut cl, &mut force);
-            let bits = |v: &[f64]| v.iter().map(|a| a.to_bits()).collect::<Vec<_>>();
-            let flat = |v: &[[f64; 2]]| bits(&v.concat());
-            (bits(&y), bits(&b), bits(&diagonal), flat(&cs), flat(&cl))
+            let mut divergence = vec![0.0; grid.element_count()];
+            problem.divergence(&vs, &vl, &mut divergence);
+            let (mut fs, mut fl) = (vec![[0.0; 2]; grid.node_count()], vec![[0.0; 2]; grid.node_count()]);
+            problem.pressure_forces(&full, &mut fs, &mut fl);
+            let compressibility: Vec<f64> = (0..grid.element_count()).map(|e| problem.compressibility(e)).collect();
+            let given: Vec<f64> = (0..grid.element_count()).map(|e| problem.given_pressure(e)).collect();
+            let continuity = problem.continuity_residual(&vs, &vl, &pressure);
+            (
+                [bits(&y), bits(&b), bits(&diagonal), flat(&cs), flat(&cl)],
+                [bits(&divergence), flat(&fs), flat(&fl), bits(&compressibility), bits(&given)],
+                continuity.to_bits(),
+            )
         });
         assert!(results[0] == results[1], "a reset problem differs from a fresh one");
     }
