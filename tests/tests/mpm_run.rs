@@ -67,6 +67,27 @@ fn dry_mpm_column_collapses_and_stops() {
     let slope = (top / x_front).atan().to_degrees();
     assert!(slope < 35.0 && top < 0.06, "pile {top} m high over {x_front} m: {slope} degrees");
     assert!(s["throughput"]["point_updates_per_s"].as_f64().unwrap() > 0.0);
+    // The stage timers under the names docs/recording.md gives, within the
+    // run's wall time; a dry column spends nothing on the pore pressure.
+    let stages = mpm["stage_seconds"].as_object().unwrap();
+    let names: Vec<&str> = stages.keys().map(String::as_str).collect();
+    assert_eq!(
+        names,
+        [
+            "locate",
+            "map",
+            "prepare_forces",
+            "pressure",
+            "remap",
+            "solve_nodes",
+            "update_points",
+            "update_velocities",
+            "wall_friction"
+        ]
+    );
+    let sum: f64 = stages.values().map(|v| v.as_f64().unwrap()).sum();
+    assert!(sum > 0.0 && sum <= s["wall_seconds"].as_f64().unwrap(), "stage seconds {sum}");
+    assert_eq!(stages["pressure"].as_f64().unwrap(), 0.0);
 }
 
 #[test]
