@@ -249,6 +249,17 @@ struct ElementStencil {
     d: [[[f64; 2]; 2]; 4],
 }
 
+/// Appends to `out` the corners of `stencils` not yet stamped with `stamp`,
+/// stamping them: each node once, in first-seen order.
+fn add_new_corners(stencils: &[ElementStencil], node_stamp: &mut [u32], stamp: u32, out: &mut Vec<u32>) {
+    for node in stencils.iter().flat_map(|st| st.nodes) {
+        if node_stamp[node] != stamp {
+            node_stamp[node] = stamp;
+            out.push(node as u32);
+        }
+    }
+}
+
 impl PressureProblem {
     /// An empty problem over `grid` (every element given p = 0, n = 1, every
     /// node without mobility) for time step `dt` (s) and liquid bulk
@@ -383,18 +394,19 @@ impl PressureProblem {
                 self.given.push(e as u32);
             }
         }
-        let mut stencils = std::mem::take(&mut self.unknown_stencils);
-        stencils.clear();
-        stencils.extend(self.unknowns.iter().map(|&e| self.stencil(e as usize)));
-        self.unknown_stencils = stencils;
-        let mut stencils = std::mem::take(&mut self.given_stencils);
-        stencils.clear();
-        stencils.extend(self.given.iter().map(|&e| self.stencil(e as usize)));
-        self.given_stencils = stencils;
-        let mut compressibility = std::mem::take(&mut self.unknown_compressibility);
-        compressibility.clear();
-        compressibility.extend(self.unknowns.iter().map(|&e| self.compressibility(e as usize)));
-        self.unknown_compressibility = compressibility;
+        self.unknown_stencils.clear();
+        self.unknown_compressibility.clear();
+        for k in 0..self.unknowns.len() {
+            let e = self.unknowns[k] as usize;
+            let (st, c) = (self.stencil(e), self.compressibility(e));
+            self.unknown_stencils.push(st);
+            self.unknown_compressibility.push(c);
+        }
+        self.given_stencils.clear();
+        for k in 0..self.given.len() {
+            let st = self.stencil(self.given[k] as usize);
+            self.given_stencils.push(st);
+        }
         self.stamp = self.stamp.wrapping_add(1);
         if self.stamp == 0 {
             // Wrapped round to the value of never-stamped nodes.
@@ -402,23 +414,9 @@ impl PressureProblem {
             self.stamp = 1;
         }
         self.unknown_corners.clear();
-        for st in &self.unknown_stencils {
-            for node in st.nodes {
-                if self.node_stamp[node] != self.stamp {
-                    self.node_stamp[node] = self.stamp;
-                    self.unknown_corners.push(node as u32);
-                }
-            }
-        }
+        add_new_corners(&self.unknown_stencils, &mut self.node_stamp, self.stamp, &mut self.unknown_corners);
         self.listed_corners.clone_from(&self.unknown_corners);
-        for st in &self.given_stencils {
-            for node in st.nodes {
-                if self.node_stamp[node] != self.stamp {
-                    self.node_stamp[node] = self.stamp;
-                    self.listed_corners.push(node as u32);
-                }
-            }
-        }
+        add_new_corners(&self.given_stencils, &mut self.node_stamp, self.stamp, &mut self.listed_corners);
         self.indexed = true;
     }
 
@@ -558,7 +556,7 @@ impl PressureProblem {
     }
 
     fn check_indexed(&self) {
-        assert!(self.indexed, "PressureProblem: call index_elements after set_element");
+        assert!(self.indexed, "PressureProblem: call index_elements after set_element and set_fluid_modulus");
     }
 
     /// Zeroes the scratch forces at `nodes`.

@@ -404,6 +404,7 @@ pub struct Mpm {
     fill: Vec<f64>,
     /// Nodal accelerations and displacement increments, [solid, liquid].
     accel: Vec<NodeUpdate>,
+    /// What the grid-to-points map reads per node (APIC/AFLIP).
     grid_velocity: Vec<GridVelocity>,
     disp: Vec<[[f64; 2]; 2]>,
     liquid_fill: Vec<f64>,
