@@ -142,16 +142,11 @@ pub fn walls(scene: &Scene, gates_closed: bool) -> Vec<Wall> {
         point[axis] = if sign > 0.0 { d.min[axis] } else { d.max[axis] };
         let mut normal = [0.0; 3];
         normal[axis] = sign;
-        out.push(Wall { name: face.name().to_string(), point, normal, release_time: f64::INFINITY, active: true });
+        out.push(Wall::fixed(face.name(), point, normal, f64::INFINITY));
     }
     for (g, gate) in scene.spec.gates.iter().enumerate() {
-        out.push(Wall {
-            name: gate.name.clone(),
-            point: gate.point,
-            normal: scene.gate_normals[g],
-            release_time: if gates_closed { f64::INFINITY } else { gate.release_time },
-            active: true,
-        });
+        let release_time = if gates_closed { f64::INFINITY } else { gate.release_time };
+        out.push(Wall::fixed(gate.name.clone(), gate.point, scene.gate_normals[g], release_time));
     }
     out
 }

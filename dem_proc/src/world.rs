@@ -49,6 +49,17 @@ pub struct Wall {
     /// Time at which the wall disappears (gates), s; infinity for fixed walls.
     pub release_time: f64,
     pub active: bool,
+    /// Velocity the wall translates with, m/s; zero for the scenes' box
+    /// faces and gates. A moving wall (an element test's platen) moves its
+    /// point by Δt × velocity each step, and its contacts see that velocity.
+    pub velocity: [f64; 3],
+}
+
+impl Wall {
+    /// A fixed wall, present until `release_time` (infinity: for good).
+    pub fn fixed(name: impl Into<String>, point: [f64; 3], normal: [f64; 3], release_time: f64) -> Self {
+        Wall { name: name.into(), point, normal, release_time, active: true, velocity: [0.0; 3] }
+    }
 }
 
 /// Per-grain state (struct of arrays).
@@ -125,6 +136,9 @@ struct Scratch {
     pos_at_build: Vec<[f64; 3]>,
     /// Per grain, a bit for each wall within reach until the next list build.
     near_walls: Vec<u32>,
+    /// Bound on the distance any wall moved along its normal since the last
+    /// list build, m (zero unless walls move).
+    wall_travel: f64,
     inv_mass: Vec<f64>,
     inv_inertia: Vec<f64>,
     /// Per grain (radius, mass, 1/I) in one record: the pair kernel reads
@@ -440,13 +454,18 @@ impl World {
         let t0 = Instant::now();
         self.release_gates();
         let max_move = self.kick_and_drift();
+        self.move_walls();
         let t1 = Instant::now();
         let interval = self.numerics.sort_interval;
+        let skin = self.numerics.skin;
         if interval > 0 && self.step_count > 0 && self.step_count.is_multiple_of(interval) {
             self.sort_in_space();
             self.build_neighbours();
             self.balance_blocks();
-        } else if 2.0 * max_move > self.numerics.skin {
+        } else if 2.0 * max_move > skin || max_move + self.scratch.wall_travel > skin {
+            // Pairs: two grains close by at most 2 × max_move. A wall left out
+            // of a grain's near walls was farther than radius + skin, and
+            // the gap closes by at most max_move + the wall's travel.
             self.build_neighbours();
         }
         let t2 = Instant::now();
@@ -496,6 +515,19 @@ impl World {
                 }
             }
         }
+    }
+
+    /// Part of stage 1: moving walls translate by Δt × velocity. The travel
+    /// kept for the list rebuild adds the fastest wall's step each step, a
+    /// bound on every wall's travel.
+    fn move_walls(&mut self) {
+        let dt = self.numerics.dt;
+        let mut fastest = 0.0_f64;
+        for wall in self.walls.iter_mut().filter(|w| w.velocity != [0.0; 3]) {
+            wall.point = [0, 1, 2].map(|a| wall.point[a] + dt * wall.velocity[a]);
+            fastest = fastest.max((dt * dot(wall.velocity, wall.normal)).abs());
+        }
+        self.scratch.wall_travel += fastest;
     }
 
     /// Stage 1. Returns the largest displacement since the last list build.
@@ -636,6 +668,7 @@ impl World {
         let skin = self.numerics.skin;
         let walls = &self.walls;
         let g = &self.grains;
+        self.scratch.wall_travel = 0.0;
         self.scratch.near_walls.clear();
         self.scratch.near_walls.extend((0..g.len()).map(|p| {
             walls.iter().enumerate().fold(0u32, |mask, (w, wall)| {
@@ -865,6 +898,31 @@ impl World {
             }
         }
         e
+    }
+
+    /// Each wall's elastic normal load k_n δ summed over its grains, N, and
+    /// the number of grains touching it. The dashpot's share is left out: it
+    /// follows the grains' speeds against the wall, which an element test
+    /// keeps small, and it averages out at rest.
+    pub fn wall_loads(&self) -> Vec<(f64, usize)> {
+        let g = &self.grains;
+        let kn = self.wall_law.normal_stiffness;
+        self.walls
+            .iter()
+            .map(|wall| {
+                if !wall.active {
+                    return (0.0, 0);
+                }
+                (0..g.len()).fold((0.0, 0), |(load, touching), p| {
+                    let overlap = g.radius[p] - dot(sub(g.pos[p], wall.point), wall.normal);
+                    if overlap > 0.0 {
+                        (load + kn * overlap, touching + 1)
+                    } else {
+                        (load, touching)
+                    }
+                })
+            })
+            .collect()
     }
 
     /// Largest grain speed, m/s.
@@ -1106,7 +1164,7 @@ struct WallBatch {
 
 impl WallBatch {
     /// Empty, unused lanes holding a harmless contact (see [`PairBatch::new`]);
-    /// the wall's side of every lane (arm, velocity, spin) is zero for good.
+    /// the wall's arm and spin are zero for good, its velocity set per contact.
     fn new() -> Self {
         let (zero, one) = (Lanes::splat(0.0), Lanes::splat(1.0));
         WallBatch {
@@ -1194,6 +1252,7 @@ impl GrainSumKernel<'_> {
                 c.arm_i.0[l] = r - overlap;
                 lanes::set_lane(&mut c.vel_i, l, vel[k]);
                 lanes::set_lane(&mut c.omega_i, l, omega[k]);
+                lanes::set_lane(&mut c.vel_j, l, wall.velocity);
                 c.effective_mass.0[l] = self.mass[p];
                 c.inv_inertia_sum.0[l] = self.inv_inertia[p];
                 c.rolling_diameter.0[l] = 2.0 * r;
