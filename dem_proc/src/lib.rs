@@ -8,6 +8,7 @@
 //! * [`packing`]: gravity deposition with a disk cache;
 //! * [`run`]: a whole run with recording and summary.
 
+pub mod biaxial;
 pub mod contact;
 pub mod hydro;
 pub mod lammps;

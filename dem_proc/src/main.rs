@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use clap::{Parser, Subcommand};
 
+use dem_proc::biaxial::BiaxialSpec;
 use dem_proc::run::{run, RunError};
 use runtime::process::{exit_after_run, set_global_threads, start_run, Reporter, RunArgs, RunOptions};
 use runtime::{say, tell};
@@ -31,6 +32,35 @@ enum Command {
         set: Vec<String>,
         #[arg(long, default_value_t = 20000)]
         steps: u64,
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+    /// Plane-strain biaxial test of the scene's grains and contact law
+    /// (docs/dem.md, "Element test"): prints the measured friction and
+    /// dilatancy angles as one JSON line and writes every sample to OUT.
+    Biaxial {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        /// JSON file for the record (settings, samples, summary).
+        #[arg(long)]
+        out: PathBuf,
+        /// σ_3, Pa.
+        #[arg(long, default_value_t = BiaxialSpec::default().confining_stress)]
+        confining_stress: f64,
+        /// I = ε̇ D / √(σ_3/ρ_s).
+        #[arg(long, default_value_t = BiaxialSpec::default().inertial_number)]
+        inertial_number: f64,
+        #[arg(long, default_value_t = BiaxialSpec::default().max_axial_strain)]
+        max_axial_strain: f64,
+        /// Grains along x, y, z on the starting lattice.
+        #[arg(long, value_delimiter = ',', default_values_t = BiaxialSpec::default().lattice)]
+        lattice: Vec<usize>,
+        /// Grain friction while compressing (default: the scene's deposition friction).
+        #[arg(long)]
+        preparation_friction: Option<f64>,
+        #[arg(long, default_value_t = BiaxialSpec::default().seed)]
+        seed: u64,
         #[arg(long)]
         threads: Option<usize>,
     },
@@ -97,6 +127,70 @@ fn main() -> ExitCode {
                     w.time,
                     serde_json::to_string(&w.stage_seconds).expect("serialises")
                 );
+                Ok::<(), ExitCode>(())
+            })();
+            result.err().unwrap_or(ExitCode::SUCCESS)
+        }
+        Command::Biaxial {
+            scene,
+            set,
+            out,
+            confining_stress,
+            inertial_number,
+            max_axial_strain,
+            lattice,
+            preparation_friction,
+            seed,
+            threads,
+        } => {
+            let result = (|| {
+                let scene = load_scene(&scene, &set)?;
+                set_global_threads("dem_proc", threads)?;
+                let [nx, ny, nz] = lattice[..] else {
+                    tell!("dem_proc: --lattice takes three counts, NX,NY,NZ; got {lattice:?}");
+                    return Err(ExitCode::FAILURE);
+                };
+                let stop = runtime::process::stop_flag().map_err(|e| {
+                    tell!("dem_proc: cannot install signal handler: {e}");
+                    ExitCode::FAILURE
+                })?;
+                let spec = BiaxialSpec {
+                    lattice: [nx, ny, nz],
+                    confining_stress,
+                    inertial_number,
+                    max_axial_strain,
+                    preparation_friction,
+                    seed,
+                    ..BiaxialSpec::default()
+                };
+                let started = Instant::now();
+                let mut last_report = started;
+                let record = dem_proc::biaxial::run(&scene, &spec, &stop, |phase, x| {
+                    if last_report.elapsed().as_secs_f64() < 2.0 {
+                        return;
+                    }
+                    last_report = Instant::now();
+                    match phase {
+                        "shear" => tell!("biaxial: shear, axial strain {x:.3}"),
+                        _ => tell!("biaxial: {phase}, walls {:.1} % off the confining stress", 100.0 * x),
+                    }
+                })
+                .map_err(|e| {
+                    tell!("dem_proc: error: {e}");
+                    if matches!(e, dem_proc::biaxial::BiaxialError::Interrupted) {
+                        ExitCode::from(EXIT_INTERRUPTED as u8)
+                    } else {
+                        ExitCode::FAILURE
+                    }
+                })?;
+                let text = serde_json::to_string_pretty(&record).expect("serialises");
+                std::fs::write(&out, text).map_err(|e| {
+                    tell!("dem_proc: cannot write {}: {e}", out.display());
+                    ExitCode::FAILURE
+                })?;
+                let mut summary = serde_json::to_value(&record.summary).expect("serialises");
+                summary["seconds"] = started.elapsed().as_secs_f64().into();
+                say!("{summary}");
                 Ok::<(), ExitCode>(())
             })();
             result.err().unwrap_or(ExitCode::SUCCESS)
