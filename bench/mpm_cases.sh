@@ -3,17 +3,20 @@
 # saturated, H0 = 0.03 ... 0.07 m) through coupler and prints one line per
 # case: points, element, status, t/t_ref, wall time, point-updates/s, solid
 # runout and (saturated) liquid front at the end.
-# usage: bash bench/mpm_cases.sh [OUT_DIR]   (default runs/mpm_cases; ~3 min on 2 cores)
+# usage: bash bench/mpm_cases.sh [OUT_DIR [--set KEY=VALUE ...]]
+#   (default runs/mpm_cases; ~3 min on 2 cores). Any further arguments go to
+#   every `coupler run`, e.g. `--set mpm.friction_angle=26.6`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/mpm_cases}
+shift || true
 cargo build --release -q -p coupler -p mpm_proc
 mkdir -p "$out"
 printf '%-13s %5s %7s %9s %8s %8s %8s %11s %7s %7s\n' case a points element status t/t_ref wall_s pt-upd/s runout liquid
 for kind in dry sat; do
   for h in 030 040 050 060 070; do
     n="mpm_${kind}_h$h"
-    target/release/coupler run "scenes/ceccato2020/$n.toml" --quiet --out "$out/$n" 2> "$out/$n.log"
+    target/release/coupler run "scenes/ceccato2020/$n.toml" --quiet --out "$out/$n" "$@" 2> "$out/$n.log"
     python3 - "$out/$n/summary.json" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1])); m = s["mpm"]
