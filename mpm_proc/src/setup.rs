@@ -70,6 +70,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         cavitation: spec.cavitation_threshold,
         air_pressure: spec.air_pressure,
         max_porosity: spec.max_porosity,
+        dilatancy_cutoff_porosity: spec.dilatancy_cutoff_porosity.unwrap_or(f64::INFINITY),
         damping: spec.damping,
         wall_friction: spec.wall_friction,
         free_surface_fill: spec.free_surface_fill,
@@ -85,6 +86,13 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
             spec.friction_angle,
             spec.cohesion,
             spec.dilatancy_angle,
+        ),
+        critical_soil: MohrCoulomb::new(
+            spec.young_modulus,
+            spec.poisson_ratio,
+            spec.friction_angle,
+            spec.cohesion,
+            0.0,
         ),
         drag: DragLaw {
             grain_diameter: if grain.is_finite() { grain } else { 1e-3 },

@@ -40,6 +40,9 @@ pub struct Params {
     pub air_pressure: f64,
     /// Fluidisation porosity n_max.
     pub max_porosity: f64,
+    /// Dilatancy cut-off: points at or above this porosity yield with
+    /// `critical_soil` (ψ = 0) instead of `soil`; +∞ without a cut-off.
+    pub dilatancy_cutoff_porosity: f64,
     /// Local damping α.
     pub damping: f64,
     /// Coulomb friction μ of the solid on the walls listed in
@@ -76,6 +79,9 @@ pub struct Params {
     /// liquid points (`setup::build`).
     pub implicit_pressure: bool,
     pub soil: MohrCoulomb,
+    /// The same soil without dilatancy, for points past the dilatancy
+    /// cut-off.
+    pub critical_soil: MohrCoulomb,
     pub drag: DragLaw,
 }
 
@@ -1453,7 +1459,7 @@ impl Mpm {
         let row = grid.node_dims()[0];
         let (lo, hi) = (grid.origin, grid.far_corner());
         let (rho_s, n_max) = (p.solid_density, p.max_porosity);
-        let soil = &p.soil;
+        let (soil, critical_soil, n_cs) = (&p.soil, &p.critical_soil, p.dilatancy_cutoff_porosity);
         s.set
             .x
             .par_iter_mut()
@@ -1472,8 +1478,10 @@ impl Mpm {
                 *fl = *n > n_max;
                 if *fl {
                     *sigma = [0.0; 4];
-                } else {
+                } else if *n < n_cs {
                     soil.update(sigma, de);
+                } else {
+                    critical_soil.update(sigma, de);
                 }
                 let du = st.interpolate(row, |i| disp[i][0]);
                 x[0] = (x[0] + du[0]).clamp(lo[0], hi[0]);

@@ -349,6 +349,15 @@ pub struct MpmSpec {
     /// Dilatancy angle ψ of the plastic potential, degrees (ψ ≤ φ). Default 0.
     #[serde(default)]
     pub dilatancy_angle: f64,
+    /// Porosity at which a dilating soil reaches its critical state
+    /// (PLAXIS's dilatancy cut-off, e_max): ψ applies at points whose
+    /// porosity is below it and 0 at and above, so a dense soil dilates by
+    /// a bounded volume and then shears at constant volume. Needs
+    /// `dilatancy_angle` > 0. Default: none (ψ at every porosity). The
+    /// lab grains' measured value: 0.428 with ψ = 9° (docs/dem.md, "Element
+    /// test").
+    #[serde(default)]
+    pub dilatancy_cutoff_porosity: Option<f64>,
     /// Liquid bulk modulus K_L of Eq. 11, Pa. Default 2e7 (the paper's reduced value).
     #[serde(default = "default_mpm_bulk")]
     pub liquid_bulk_modulus: f64,
@@ -1543,6 +1552,17 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
                 m.friction_angle, m.dilatancy_angle
             ),
         );
+    }
+    if let Some(n_cs) = m.dilatancy_cutoff_porosity {
+        v.open_range("mpm.dilatancy_cutoff_porosity", n_cs, 0.0, 1.0);
+        if m.dilatancy_angle == 0.0 {
+            v.fail(
+                "mpm.dilatancy_cutoff_porosity",
+                format!(
+                    "= {n_cs} stops a dilatancy that mpm.dilatancy_angle = 0 never starts: set mpm.dilatancy_angle > 0, or remove the cut-off"
+                ),
+            );
+        }
     }
     v.positive("mpm.liquid_bulk_modulus", m.liquid_bulk_modulus);
     v.at_least("mpm.cavitation_threshold", m.cavitation_threshold, 0.0);

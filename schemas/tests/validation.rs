@@ -248,6 +248,8 @@ const BAD_MPM: &[(&str, &str, &str)] = &[
     ("mpm.cohesion=-1", "mpm.cohesion", ">= 0"),
     ("mpm.dilatancy_angle=40", "mpm.dilatancy_angle", "[0, mpm.friction_angle] = [0, 35]"),
     ("mpm.dilatancy_angle=-1", "mpm.dilatancy_angle", "[0, mpm.friction_angle]"),
+    ("mpm.dilatancy_cutoff_porosity=0.43", "mpm.dilatancy_cutoff_porosity", "mpm.dilatancy_angle = 0 never starts"),
+    ("mpm.dilatancy_cutoff_porosity=1", "mpm.dilatancy_cutoff_porosity", "(0, 1)"),
     ("mpm.liquid_bulk_modulus=0", "mpm.liquid_bulk_modulus", "> 0"),
     ("mpm.cavitation_threshold=-1", "mpm.cavitation_threshold", ">= 0"),
     ("mpm.max_porosity=1", "mpm.max_porosity", "(0, 1)"),

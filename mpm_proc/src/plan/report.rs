@@ -172,6 +172,14 @@ fn plan_materials(scene: &Scene, ts: &mpm::MpmTimeStep, p: &mut Plan) {
             n0,
             m.max_porosity
         ));
+        if let Some(n_cs) = m.dilatancy_cutoff_porosity {
+            p.line("dilatancy cut-off", format!("psi {} deg below porosity {n_cs}, 0 at and above", m.dilatancy_angle));
+            if n0 >= n_cs {
+                p.warn(format!(
+                    "n0 = {n0} is not below mpm.dilatancy_cutoff_porosity = {n_cs}: the soil starts at its critical state and never dilates"
+                ));
+            }
+        }
         if n0 >= m.max_porosity {
             p.warn(format!(
                 "n0 = {n0} is not below mpm.max_porosity = {}: the soil starts fluidised (no effective stress)",
