@@ -56,7 +56,8 @@ enum Command {
         /// Grains along x, y, z on the starting lattice.
         #[arg(long, value_delimiter = ',', default_values_t = BiaxialSpec::default().lattice)]
         lattice: Vec<usize>,
-        /// Grain friction while compressing (default: the scene's deposition friction).
+        /// Grain sliding friction while compressing (default: the scene's
+        /// deposition friction; 0.1 gives the lab column's core porosity).
         #[arg(long)]
         preparation_friction: Option<f64>,
         #[arg(long, default_value_t = BiaxialSpec::default().seed)]

@@ -51,7 +51,10 @@ pub struct Wall {
     pub active: bool,
     /// Velocity the wall translates with, m/s; zero for the scenes' box
     /// faces and gates. A moving wall (an element test's platen) moves its
-    /// point by Δt × velocity each step, and its contacts see that velocity.
+    /// point by Δt × velocity each step while active, and its contacts see
+    /// that velocity. Saved DEM states keep only which walls are active:
+    /// scenes cannot move walls, so a resumed run rebuilds them from the
+    /// scene.
     pub velocity: [f64; 3],
 }
 
@@ -523,7 +526,7 @@ impl World {
     fn move_walls(&mut self) {
         let dt = self.numerics.dt;
         let mut fastest = 0.0_f64;
-        for wall in self.walls.iter_mut().filter(|w| w.velocity != [0.0; 3]) {
+        for wall in self.walls.iter_mut().filter(|w| w.active && w.velocity != [0.0; 3]) {
             wall.point = [0, 1, 2].map(|a| wall.point[a] + dt * wall.velocity[a]);
             fastest = fastest.max((dt * dot(wall.velocity, wall.normal)).abs());
         }

@@ -174,6 +174,12 @@ fn plan_materials(scene: &Scene, ts: &mpm::MpmTimeStep, p: &mut Plan) {
         ));
         if let Some(n_cs) = m.dilatancy_cutoff_porosity {
             p.line("dilatancy cut-off", format!("psi {} deg below porosity {n_cs}, 0 at and above", m.dilatancy_angle));
+            if n_cs >= m.max_porosity {
+                p.warn(format!(
+                    "mpm.dilatancy_cutoff_porosity = {n_cs} is not below mpm.max_porosity = {}: the soil fluidises before its dilatancy stops",
+                    m.max_porosity
+                ));
+            }
             if n0 >= n_cs {
                 p.warn(format!(
                     "n0 = {n0} is not below mpm.dilatancy_cutoff_porosity = {n_cs}: the soil starts at its critical state and never dilates"
