@@ -100,8 +100,8 @@ fn dense_frictional_spheres_dilate_and_soften_to_a_critical_state() {
     );
     // The same grains without contact friction mobilise sin φ ≈ 0.1 (6°);
     // μ_s = 0.577 with rolling resistance lifts the critical state to
-    // 24.6–28.4° in the 1600-grain runs (Thornton 2000: ~24° for μ_s = 0.5
-    // without rolling); 20–32° leaves this small sample its scatter.
+    // 24.6–28.4° in the 1600-grain runs (19.9° without rolling
+    // resistance); 20–32° leaves this small sample its scatter.
     assert!((20.0..32.0).contains(&s.final_friction_deg), "critical-state friction {:.1}°", s.final_friction_deg);
 }
 
