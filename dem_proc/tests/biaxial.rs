@@ -70,7 +70,8 @@ fn frictionless_spheres_have_a_friction_near_a_tenth_and_no_dilatancy() {
     // deforms.
     let dilation = s.final_porosity - s.initial_porosity;
     assert!(dilation.abs() < 0.01, "porosity {:.4} -> {:.4}", s.initial_porosity, s.final_porosity);
-    // μ* = 0.10 at I → 0; at I = 5e-4 and on ~500 grains, 0.10–0.15.
+    // μ* = 0.10 at I → 0; at I = 5e-4, 0.118 on 1600 grains and 0.144 on
+    // these 480 (measured): the bound leaves the small sample its scatter.
     let mu = sin_friction_past(&record, 0.03);
     assert!((0.07..0.16).contains(&mu), "frictionless sin φ = {mu:.3}");
 }
