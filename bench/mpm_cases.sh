@@ -5,7 +5,7 @@
 # runout and (saturated) liquid front at the end.
 # usage: bash bench/mpm_cases.sh [OUT_DIR [--set KEY=VALUE ...]]
 #   (default runs/mpm_cases; ~3 min on 2 cores). Any further arguments go to
-#   every `coupler run`, e.g. `--set mpm.friction_angle=26.6`.
+#   every `coupler run`, e.g. `--set mpm.friction_angle=27` (docs/RESULTS.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/mpm_cases}
