@@ -68,6 +68,57 @@ pub struct MohrCoulomb {
     apex: f64,
 }
 
+/// Rate-dependent friction, the μ(I) rheology of dense granular flow (GDR
+/// MiDi 2004, *Eur. Phys. J. E* 14; Jop, Forterre & Pouliquen 2006,
+/// *Nature* 441), in the plane-strain Mohr–Coulomb form:
+///
+/// sin φ(I) = sin φ_s + (sin φ_2 − sin φ_s) / (1 + I_0 / I),
+/// I = γ̇ D / √(p′ / ρ_s),
+///
+/// with γ̇ = ε̇_1 − ε̇_3 the largest in-plane shear rate and p′ = −(σ_1 + σ_3)/2
+/// the in-plane mean effective stress (compression positive), so that
+/// sin φ = (σ_1 − σ_3)/(σ_1 + σ_3) is the μ = τ/p of a plane shear flow. At
+/// rest (I → 0) the soil is the rate-independent Mohr–Coulomb of φ_s; a
+/// point without effective pressure (I → ∞) takes φ_2. The rate carries
+/// the grains' own time √(ρ_s D² / p′) as a length and time scale, which a
+/// rate-independent soil has none of (the docs/mpm.md "Rate-dependent
+/// friction" section).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InertialFriction {
+    /// sin φ_s, the quasi-static (critical-state) friction.
+    pub sin_static: f64,
+    /// sin φ_2, the friction as I → ∞ (≥ sin φ_s).
+    pub sin_limit: f64,
+    /// I_0, the inertial number at which half the rise is reached (> 0).
+    pub reference_inertial_number: f64,
+    /// Grain diameter D, m.
+    pub grain_diameter: f64,
+    /// Grain density ρ_s, kg/m³.
+    pub grain_density: f64,
+}
+
+impl InertialFriction {
+    /// The inertial number of a point over one step: `stress` (Pa, tension
+    /// positive, `[σ_xx, σ_zz, σ_xz, σ_yy]`) at the step's start,
+    /// `strain_inc` `[Δε_xx, Δε_zz, Δγ_xz]` over `dt` (s). +∞ where the
+    /// in-plane mean stress is not compressive.
+    pub fn inertial_number(&self, stress: &[f64; 4], strain_inc: [f64; 3], dt: f64) -> f64 {
+        let [exx, ezz, gxz] = strain_inc;
+        let shear_rate = ((exx - ezz) * (exx - ezz) + gxz * gxz).sqrt() / dt;
+        let pressure = -0.5 * (stress[0] + stress[1]);
+        if pressure > 0.0 {
+            shear_rate * self.grain_diameter * (self.grain_density / pressure).sqrt()
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// sin φ(I). Pre: I ≥ 0 (+∞ allowed). Post: in [sin φ_s, sin φ_2].
+    pub fn sin_friction(&self, inertial_number: f64) -> f64 {
+        self.sin_static + (self.sin_limit - self.sin_static) / (1.0 + self.reference_inertial_number / inertial_number)
+    }
+}
+
 /// The trial stress in principal form: the sorted values and what is needed
 /// to rotate the returned values back.
 #[derive(Debug, Clone, Copy)]
@@ -157,6 +208,15 @@ impl MohrCoulomb {
             shear: young / (2.0 * (1.0 + poisson)),
             apex,
         }
+    }
+
+    /// The same soil with the friction angle whose sine is `sin_phi`
+    /// (0 < sin φ < 1): the rate-dependent friction of [`InertialFriction`]
+    /// sets it point by point each step. The elasticity, the cohesion and ψ
+    /// are kept (the caller keeps ψ ≤ φ).
+    pub fn with_friction_sine(&self, sin_phi: f64) -> Self {
+        let cos_phi = (1.0 - sin_phi * sin_phi).sqrt();
+        MohrCoulomb { friction: sin_phi.asin(), sin_phi, cos_phi, apex: self.cohesion * cos_phi / sin_phi, ..*self }
     }
 
     /// Young's modulus E, Pa.
@@ -812,5 +872,49 @@ mod tests {
         assert_eq!(m.return_map(&mut s), Return::EdgeTriaxialCompression);
         assert_eq!(s[2], 0.0);
         assert_eq!(s[0], s[1]);
+    }
+
+    /// Steady simple shear at a constant rate γ̇ and in-plane mean stress p′
+    /// mobilises τ/p′ = sin φ(I) with I = γ̇ D √(ρ_s/p′): from an isotropic
+    /// start σ_xx = σ_zz stays equal (ψ = 0 keeps σ_1 + σ_3), so the
+    /// principal axes stay at 45° and the yield condition reads τ = p′ sin φ.
+    /// An inertial number from p′ in place of √p′, or from half the
+    /// engineering shear rate, misses by percents (7 % at I_0 for the
+    /// latter) against the 1e-12 asked.
+    #[test]
+    fn steady_simple_shear_mobilises_the_rate_dependent_friction() {
+        let (phi_s, phi_2): (f64, f64) = (27f64.to_radians(), 45.6f64.to_radians());
+        let rheology = InertialFriction {
+            sin_static: phi_s.sin(),
+            sin_limit: phi_2.sin(),
+            reference_inertial_number: 0.279,
+            grain_diameter: 2.5e-3,
+            grain_density: 2650.0,
+        };
+        let soil = MohrCoulomb::new(1.0e7, 0.3, 27.0, 0.0, 0.0);
+        let p = 300.0;
+        for target in [1e-6, 0.05, 0.279, 2.0] {
+            let rate = target / (rheology.grain_diameter * (rheology.grain_density / p).sqrt());
+            // 200 steps of Δγ = 2e-6 pass the yield strain (~6e-5) at any rate.
+            let dt = 2.0e-6 / rate;
+            let de = [0.0, 0.0, rate * dt];
+            let mut s = [-p, -p, 0.0, -p];
+            let mut last = Return::Elastic;
+            for _ in 0..200 {
+                let i = rheology.inertial_number(&s, de, dt);
+                assert!((i - target).abs() <= 1e-12 * target, "I = {i}, sheared at {target}");
+                last = soil.with_friction_sine(rheology.sin_friction(i)).update(&mut s, de);
+            }
+            assert_eq!(last, Return::Plane, "I = {target}");
+            let expected = phi_s.sin() + (phi_2.sin() - phi_s.sin()) * target / (target + 0.279);
+            assert!((s[2] / p - expected).abs() < 1e-12, "I = {target}: tau/p = {}, expected {expected}", s[2] / p);
+            assert_eq!(s[0], s[1]);
+        }
+        // The limits: at rest the quasi-static friction, without effective
+        // pressure the limit, at I_0 half-way.
+        assert_eq!(rheology.sin_friction(0.0), phi_s.sin());
+        assert_eq!(rheology.inertial_number(&[0.0; 4], [0.0, 0.0, 1e-6], 1e-5), f64::INFINITY);
+        assert_eq!(rheology.sin_friction(f64::INFINITY), phi_2.sin());
+        assert!((rheology.sin_friction(0.279) - 0.5 * (phi_s.sin() + phi_2.sin())).abs() < 1e-15);
     }
 }

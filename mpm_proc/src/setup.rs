@@ -8,7 +8,7 @@ use schemas::scene::{Face, InitialStress, MpmFloor, PackingSpec, Scene};
 
 use crate::drag::DragLaw;
 use crate::grid::{Grid, GHOST};
-use crate::mohr_coulomb::MohrCoulomb;
+use crate::mohr_coulomb::{InertialFriction, MohrCoulomb};
 use crate::solver::{Fixities, LiquidPoints, Mpm, MpmState, Params, PointSet, SolidPoints};
 
 #[derive(Debug, thiserror::Error)]
@@ -94,6 +94,13 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
             spec.cohesion,
             0.0,
         ),
+        inertial_friction: spec.limit_friction_angle.map(|phi2| InertialFriction {
+            sin_static: spec.friction_angle.to_radians().sin(),
+            sin_limit: phi2.to_radians().sin(),
+            reference_inertial_number: spec.reference_inertial_number,
+            grain_diameter: grain,
+            grain_density: rho_s,
+        }),
         drag: DragLaw {
             grain_diameter: if grain.is_finite() { grain } else { 1e-3 },
             ergun_a: spec.ergun_a,

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::drag::DragLaw;
 use crate::grid::{Grid, Stencil};
-use crate::mohr_coulomb::MohrCoulomb;
+use crate::mohr_coulomb::{InertialFriction, MohrCoulomb};
 use crate::pressure::{pore_fluid_modulus, ElementRole, PressureProblem, PressureSolver};
 use schemas::scene::ShapeFunctions;
 
@@ -82,6 +82,10 @@ pub struct Params {
     /// The same soil without dilatancy, for points past the dilatancy
     /// cut-off.
     pub critical_soil: MohrCoulomb,
+    /// Rate-dependent friction (`mpm.limit_friction_angle`): each yielding
+    /// point's φ from its inertial number, φ_s the soil's friction angle.
+    /// None: rate-independent.
+    pub inertial_friction: Option<InertialFriction>,
     pub drag: DragLaw,
 }
 
@@ -1460,6 +1464,7 @@ impl Mpm {
         let (lo, hi) = (grid.origin, grid.far_corner());
         let (rho_s, n_max) = (p.solid_density, p.max_porosity);
         let (soil, critical_soil, n_cs) = (&p.soil, &p.critical_soil, p.dilatancy_cutoff_porosity);
+        let (rate_friction, dt) = (p.inertial_friction, p.dt);
         s.set
             .x
             .par_iter_mut()
@@ -1478,10 +1483,15 @@ impl Mpm {
                 *fl = *n > n_max;
                 if *fl {
                     *sigma = [0.0; 4];
-                } else if *n < n_cs {
-                    soil.update(sigma, de);
                 } else {
-                    critical_soil.update(sigma, de);
+                    let law = if *n < n_cs { soil } else { critical_soil };
+                    match rate_friction {
+                        None => law.update(sigma, de),
+                        Some(r) => {
+                            let sin_phi = r.sin_friction(r.inertial_number(sigma, de, dt));
+                            law.with_friction_sine(sin_phi).update(sigma, de)
+                        }
+                    };
                 }
                 let du = st.interpolate(row, |i| disp[i][0]);
                 x[0] = (x[0] + du[0]).clamp(lo[0], hi[0]);

@@ -358,6 +358,20 @@ pub struct MpmSpec {
     /// test").
     #[serde(default)]
     pub dilatancy_cutoff_porosity: Option<f64>,
+    /// Rate-dependent friction, the μ(I) rheology (GDR MiDi 2004; Jop et
+    /// al. 2006): the friction angle φ_2, degrees, that a point tends to as
+    /// its inertial number I = γ̇ D / √(p′/ρ_s) grows, `friction_angle`
+    /// being the quasi-static φ_s: sin φ = sin φ_s + (sin φ_2 − sin φ_s) /
+    /// (1 + I_0/I). Default: none (rate-independent Mohr–Coulomb). The lab
+    /// grains' measured rise: docs/dem.md, "Element test".
+    #[serde(default)]
+    pub limit_friction_angle: Option<f64>,
+    /// I_0 of the rate-dependent friction: the inertial number at which
+    /// half of the rise from φ_s to `limit_friction_angle` is reached.
+    /// Default 0.279 (Jop, Forterre & Pouliquen 2006, glass beads); used
+    /// only with `limit_friction_angle`.
+    #[serde(default = "default_mpm_reference_inertial_number")]
+    pub reference_inertial_number: f64,
     /// Liquid bulk modulus K_L of Eq. 11, Pa. Default 2e7 (the paper's reduced value).
     #[serde(default = "default_mpm_bulk")]
     pub liquid_bulk_modulus: f64,
@@ -583,6 +597,9 @@ fn default_mpm_friction() -> f64 {
 }
 fn default_mpm_bulk() -> f64 {
     2.0e7
+}
+fn default_mpm_reference_inertial_number() -> f64 {
+    0.279
 }
 fn default_mpm_nmax() -> f64 {
     0.5
@@ -1564,6 +1581,18 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
             );
         }
     }
+    if let Some(phi2) = m.limit_friction_angle {
+        if !(phi2 >= m.friction_angle && phi2 < 90.0) {
+            v.fail(
+                "mpm.limit_friction_angle",
+                format!(
+                    "must be in [mpm.friction_angle, 90) = [{}, 90) degrees (the friction at high inertial number is not below the quasi-static one), got {phi2}",
+                    m.friction_angle
+                ),
+            );
+        }
+    }
+    v.positive("mpm.reference_inertial_number", m.reference_inertial_number);
     v.positive("mpm.liquid_bulk_modulus", m.liquid_bulk_modulus);
     v.at_least("mpm.cavitation_threshold", m.cavitation_threshold, 0.0);
     v.open_range("mpm.max_porosity", m.max_porosity, 0.0, 1.0);

@@ -172,6 +172,21 @@ fn plan_materials(scene: &Scene, ts: &mpm::MpmTimeStep, p: &mut Plan) {
             n0,
             m.max_porosity
         ));
+        if let Some(phi2) = m.limit_friction_angle {
+            let (s1, s2) = (m.friction_angle.to_radians().sin(), phi2.to_radians().sin());
+            let at = |i: f64| (s1 + (s2 - s1) / (1.0 + m.reference_inertial_number / i)).asin().to_degrees();
+            p.line(
+                "rate-dependent friction",
+                format!(
+                    "mu(I): phi {} deg at rest to {phi2} deg, I_0 = {}; phi {:.1}, {:.1}, {:.1} deg at I = 0.01, 0.1, 1",
+                    m.friction_angle,
+                    m.reference_inertial_number,
+                    at(0.01),
+                    at(0.1),
+                    at(1.0)
+                ),
+            );
+        }
         if let Some(n_cs) = m.dilatancy_cutoff_porosity {
             p.line("dilatancy cut-off", format!("psi {} deg below porosity {n_cs}, 0 at and above", m.dilatancy_angle));
             if n_cs >= m.max_porosity {
