@@ -219,6 +219,12 @@ impl MohrCoulomb {
         MohrCoulomb { friction: sin_phi.asin(), sin_phi, cos_phi, apex: self.cohesion * cos_phi / sin_phi, ..*self }
     }
 
+    /// The same soil with ψ = 0: what a dilatant soil shears as at its
+    /// critical state (`mpm.dilatancy_cutoff_porosity`).
+    pub fn without_dilatancy(&self) -> Self {
+        MohrCoulomb { dilatancy: 0.0, sin_psi: 0.0, ..*self }
+    }
+
     /// Young's modulus E, Pa.
     pub fn young(&self) -> f64 {
         self.young

@@ -60,6 +60,13 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
     let (dt, c_max) = (step.dt, step.max_speed);
     let gravity = [d.gravity[0], d.gravity[2]];
     let g_down = -d.gravity[2];
+    let skeleton = MohrCoulomb::new(
+        spec.young_modulus,
+        spec.poisson_ratio,
+        spec.friction_angle,
+        spec.cohesion,
+        spec.dilatancy_angle,
+    );
     let mut params = Params {
         dt,
         gravity,
@@ -80,20 +87,8 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         linear_pressure: spec.pressure_reconstruction == schemas::scene::MpmPressureReconstruction::Linear,
         implicit_pressure: spec.pressure_scheme == schemas::scene::MpmPressureScheme::Implicit,
         flip_share: [spec.flip_share_in_effect(), spec.liquid_flip_share_in_effect()],
-        soil: MohrCoulomb::new(
-            spec.young_modulus,
-            spec.poisson_ratio,
-            spec.friction_angle,
-            spec.cohesion,
-            spec.dilatancy_angle,
-        ),
-        critical_soil: MohrCoulomb::new(
-            spec.young_modulus,
-            spec.poisson_ratio,
-            spec.friction_angle,
-            spec.cohesion,
-            0.0,
-        ),
+        soil: skeleton,
+        critical_soil: skeleton.without_dilatancy(),
         inertial_friction: spec.limit_friction_angle.map(|phi2| InertialFriction {
             sin_static: spec.friction_angle.to_radians().sin(),
             sin_limit: phi2.to_radians().sin(),
