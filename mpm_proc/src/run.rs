@@ -17,7 +17,7 @@ use runtime::driver::{
 use runtime::metrics::MpmMetrics;
 use runtime::process::{Progress, RunOptions};
 use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError};
-use schemas::measures::{deposit_profile, front_position, FrontSample};
+use schemas::measures::{deposit_profile, front_position, pile_edge, FrontSample};
 use schemas::scene::{InitialStress, Scene};
 use schemas::summary::{MpmDetails, RunSummary, Throughput};
 use schemas::topics;
@@ -144,7 +144,13 @@ struct Channels {
 struct Gathered {
     #[serde(skip)]
     scratch: Vec<(f64, f64)>,
+    #[serde(skip)]
+    bins: Vec<f64>,
     front: Vec<FrontSample>,
+    /// The pile's edge at each frame, by the DEM's rule
+    /// ([`schemas::measures::pile_edge`]: the first bin of one grain
+    /// diameter where the solid's equivalent height falls below a grain).
+    front_pile: Vec<FrontSample>,
     liquid_front: Vec<FrontSample>,
     /// Largest kinetic energy seen, J/m.
     max_kinetic_energy: f64,
@@ -479,8 +485,8 @@ fn summary(r: &mut MpmRun<'_>, end: &RunEnd) -> RunSummary {
         runout: if s.set.is_empty() { f64::NAN } else { runout },
         front_connected: Vec::new(),
         runout_connected: None,
-        front_pile: Vec::new(),
-        runout_pile: None,
+        front_pile: if s.set.is_empty() { Vec::new() } else { g.front_pile.clone() },
+        runout_pile: g.front_pile.last().filter(|_| !s.set.is_empty()).map(|f| f.x_norm),
         deposit: if s.set.is_empty() { Vec::new() } else { deposit },
         porosity_initial: r.porosity_initial,
         liquid_front: g.liquid_front.clone(),
@@ -565,6 +571,7 @@ fn record_frame(r: &mut MpmRun<'_>, rec: &mut Recording, rate: f64) -> Result<Me
     let (t_ref, x0, l0) = (r.scene.reference_time(), r.scene.spec.domain.min[0], an.column_length);
     let y = r.mid_width;
     let peak_p = r.mpm.take_pore_pressure_peak();
+    let solid_fraction = 1.0 - r.porosity_initial;
     let mpm = &r.mpm;
     let frames = &mut r.gathered;
     let t = mpm.state.time;
@@ -574,6 +581,11 @@ fn record_frame(r: &mut MpmRun<'_>, rec: &mut Recording, rate: f64) -> Result<Me
     let l = &mpm.state.liquid;
     if !s.set.is_empty() {
         frames.front.push(FrontSample { t, t_norm: t / t_ref, x: m.front, x_norm: norm(m.front) });
+        // Per metre of width: a point's grains fill m/ρ_s of the section.
+        let (rho_s, d) = (mpm.params.solid_density, mpm.params.drag.grain_diameter);
+        let grains = s.set.x.iter().zip(&s.set.mass).map(|(x, &m)| (x[0], m / rho_s));
+        let edge = pile_edge(grains, x0, d, 1.0, solid_fraction, d, &mut frames.bins);
+        frames.front_pile.push(FrontSample { t, t_norm: t / t_ref, x: edge, x_norm: norm(edge) });
     }
     if !l.set.is_empty() {
         frames.liquid_front.push(FrontSample { t, t_norm: t / t_ref, x: m.liquid_front, x_norm: norm(m.liquid_front) });

@@ -60,6 +60,17 @@ fn dry_mpm_column_collapses_and_stops() {
     // without it (wall_friction = 0) the column slides to 7.4 and does not
     // stop by 12 t_ref (docs/RESULTS.md, "MPM beside DEM–LBM").
     assert!(runout > 1.07 && runout < 2.8, "runout {runout}");
+    // The pile's edge by the DEM's rule (the equivalent height of the
+    // solid per grain-wide bin below a grain diameter): at the release the
+    // column's face, within one bin (D/L0 = 0.0625) beyond it; at the end
+    // behind the 0.5 % mass front by at most a bin and past the slope bound.
+    let pile = s["front_pile"].as_array().unwrap();
+    assert_eq!(pile.len(), front.len(), "one pile edge per front sample");
+    let face = pile[0]["x_norm"].as_f64().unwrap();
+    assert!((0.0..0.0625).contains(&face), "pile edge at the release {face}");
+    let runout_pile = s["runout_pile"].as_f64().unwrap();
+    assert_eq!(runout_pile, pile.last().unwrap()["x_norm"].as_f64().unwrap());
+    assert!(runout_pile > 1.07 && runout_pile <= runout + 0.0625, "pile edge {runout_pile}, runout {runout}");
     // The deposit's mean slope (pile top to front) stays below φ = 35°.
     let deposit = s["deposit"].as_array().unwrap();
     let top = deposit.iter().map(|d| d[1].as_f64().unwrap()).fold(0.0, f64::max);
