@@ -127,7 +127,9 @@ pub struct BiaxialSummary {
     /// how well the lateral wall held the confining stress where
     /// `final_friction_deg` is measured. Above a few per cent the test is
     /// no longer stress-controlled (the shear outruns the servo: on the lab
-    /// grains from I ≈ 3e-3, docs/dem.md "Element test").
+    /// grains from I ≈ 3e-3, docs/dem.md "Element test"). NaN in records
+    /// written before session 32.
+    #[serde(default = "not_measured")]
     pub final_lateral_stress_error: f64,
     /// Final porosity of the box and of its core.
     pub final_porosity: f64,
@@ -561,6 +563,10 @@ struct SummaryContext {
     shear_time: f64,
     steps: u64,
     confining_stress: f64,
+}
+
+fn not_measured() -> f64 {
+    f64::NAN
 }
 
 /// Slope of `y` against `x` by least squares.

@@ -51,8 +51,6 @@ pub struct MohrCoulomb {
     young: f64,
     /// Poisson's ratio ν.
     poisson: f64,
-    /// Friction angle φ, rad.
-    friction: f64,
     /// Cohesion c, Pa.
     cohesion: f64,
     /// Dilatancy angle ψ, rad.
@@ -75,14 +73,21 @@ pub struct MohrCoulomb {
 /// sin φ(I) = sin φ_s + (sin φ_2 − sin φ_s) / (1 + I_0 / I),
 /// I = γ̇ D / √(p′ / ρ_s),
 ///
-/// with γ̇ = ε̇_1 − ε̇_3 the largest in-plane shear rate and p′ = −(σ_1 + σ_3)/2
-/// the in-plane mean effective stress (compression positive), so that
-/// sin φ = (σ_1 − σ_3)/(σ_1 + σ_3) is the μ = τ/p of a plane shear flow. At
-/// rest (I → 0) the soil is the rate-independent Mohr–Coulomb of φ_s; a
-/// point without effective pressure (I → ∞) takes φ_2. The rate carries
-/// the grains' own time √(ρ_s D² / p′) as a length and time scale, which a
-/// rate-independent soil has none of (the docs/mpm.md "Rate-dependent
-/// friction" section).
+/// with γ̇ = ε̇_1 − ε̇_3 the largest in-plane shear rate and p′ =
+/// −(σ_xx + σ_zz)/2 the in-plane mean effective stress (compression
+/// positive), so that sin φ = (σ_1 − σ_3)/−(σ_1 + σ_3) (tension positive) is
+/// the μ = τ/p′ of a plane shear flow. The in-plane mean, not Jop et al.'s
+/// three-dimensional one: it is the centre of the in-plane Mohr circle,
+/// which the main-plane return (σ_yy intermediate, the usual case in plane
+/// strain) holds against sin φ; the two differ by the out-of-plane stress's
+/// share (~13 % where σ_yy is elastic at ν = 0.3). At rest (I = 0) the soil is
+/// the rate-independent Mohr–Coulomb of φ_s; a shearing point without
+/// effective pressure (I → ∞) takes φ_2. Cohesionless soils only (the
+/// scene's validation): with c > 0 the apex c cot φ would move with the
+/// rate. The inertial time √(ρ_s D²/p′) is the dry grains' (GDR MiDi);
+/// immersed flows can follow another (the viscous or the drag-limited time,
+/// Cassar, Nicolas & Pouliquen 2005), not modelled here
+/// (docs/mpm.md, "Rate-dependent friction").
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InertialFriction {
     /// sin φ_s, the quasi-static (critical-state) friction.
@@ -100,13 +105,15 @@ pub struct InertialFriction {
 impl InertialFriction {
     /// The inertial number of a point over one step: `stress` (Pa, tension
     /// positive, `[σ_xx, σ_zz, σ_xz, σ_yy]`) at the step's start,
-    /// `strain_inc` `[Δε_xx, Δε_zz, Δγ_xz]` over `dt` (s). +∞ where the
-    /// in-plane mean stress is not compressive.
+    /// `strain_inc` `[Δε_xx, Δε_zz, Δγ_xz]` over `dt` (s). 0 without shear;
+    /// +∞ for a shearing point whose in-plane mean stress is not compressive.
     pub fn inertial_number(&self, stress: &[f64; 4], strain_inc: [f64; 3], dt: f64) -> f64 {
         let [exx, ezz, gxz] = strain_inc;
         let shear_rate = ((exx - ezz) * (exx - ezz) + gxz * gxz).sqrt() / dt;
         let pressure = -0.5 * (stress[0] + stress[1]);
-        if pressure > 0.0 {
+        if shear_rate == 0.0 {
+            0.0
+        } else if pressure > 0.0 {
             shear_rate * self.grain_diameter * (self.grain_density / pressure).sqrt()
         } else {
             f64::INFINITY
@@ -198,7 +205,6 @@ impl MohrCoulomb {
         MohrCoulomb {
             young,
             poisson,
-            friction,
             cohesion,
             dilatancy,
             sin_phi,
@@ -216,7 +222,7 @@ impl MohrCoulomb {
     /// are kept (the caller keeps ψ ≤ φ).
     pub fn with_friction_sine(&self, sin_phi: f64) -> Self {
         let cos_phi = (1.0 - sin_phi * sin_phi).sqrt();
-        MohrCoulomb { friction: sin_phi.asin(), sin_phi, cos_phi, apex: self.cohesion * cos_phi / sin_phi, ..*self }
+        MohrCoulomb { sin_phi, cos_phi, apex: self.cohesion * cos_phi / sin_phi, ..*self }
     }
 
     /// The same soil with ψ = 0: what a dilatant soil shears as at its
@@ -235,7 +241,7 @@ impl MohrCoulomb {
     }
     /// Friction angle φ, rad.
     pub fn friction_angle(&self) -> f64 {
-        self.friction
+        self.sin_phi.asin()
     }
     /// Cohesion c, Pa.
     pub fn cohesion(&self) -> f64 {
@@ -920,6 +926,7 @@ mod tests {
         // pressure the limit, at I_0 half-way.
         assert_eq!(rheology.sin_friction(0.0), phi_s.sin());
         assert_eq!(rheology.inertial_number(&[0.0; 4], [0.0, 0.0, 1e-6], 1e-5), f64::INFINITY);
+        assert_eq!(rheology.inertial_number(&[0.0; 4], [1e-6, 1e-6, 0.0], 1e-5), 0.0);
         assert_eq!(rheology.sin_friction(f64::INFINITY), phi_2.sin());
         assert!((rheology.sin_friction(0.279) - 0.5 * (phi_s.sin() + phi_2.sin())).abs() < 1e-15);
     }

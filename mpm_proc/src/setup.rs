@@ -92,7 +92,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         inertial_friction: spec.limit_friction_angle.map(|phi2| InertialFriction {
             sin_static: spec.friction_angle.to_radians().sin(),
             sin_limit: phi2.to_radians().sin(),
-            reference_inertial_number: spec.reference_inertial_number,
+            reference_inertial_number: spec.reference_inertial_number_in_effect(),
             grain_diameter: grain,
             grain_density: rho_s,
         }),

@@ -368,10 +368,11 @@ pub struct MpmSpec {
     pub limit_friction_angle: Option<f64>,
     /// I_0 of the rate-dependent friction: the inertial number at which
     /// half of the rise from φ_s to `limit_friction_angle` is reached.
-    /// Default 0.279 (Jop, Forterre & Pouliquen 2006, glass beads); used
-    /// only with `limit_friction_angle`.
-    #[serde(default = "default_mpm_reference_inertial_number")]
-    pub reference_inertial_number: f64,
+    /// Needs `limit_friction_angle`. Default 0.279 (Jop, Forterre &
+    /// Pouliquen 2006, glass beads): see
+    /// [`MpmSpec::reference_inertial_number_in_effect`].
+    #[serde(default)]
+    pub reference_inertial_number: Option<f64>,
     /// Liquid bulk modulus K_L of Eq. 11, Pa. Default 2e7 (the paper's reduced value).
     #[serde(default = "default_mpm_bulk")]
     pub liquid_bulk_modulus: f64,
@@ -525,7 +526,17 @@ impl Default for MpmSpec {
     }
 }
 
+/// I_0 of the rate-dependent friction when the scene gives none: Jop,
+/// Forterre & Pouliquen (2006), glass beads down an incline.
+pub const DEFAULT_REFERENCE_INERTIAL_NUMBER: f64 = 0.279;
+
 impl MpmSpec {
+    /// I_0 of the rate-dependent friction: `reference_inertial_number`,
+    /// default [`DEFAULT_REFERENCE_INERTIAL_NUMBER`].
+    pub fn reference_inertial_number_in_effect(&self) -> f64 {
+        self.reference_inertial_number.unwrap_or(DEFAULT_REFERENCE_INERTIAL_NUMBER)
+    }
+
     /// The FLIP share β in effect: `flip_share` (default 0.9) under `aflip`,
     /// 0 otherwise.
     pub fn flip_share_in_effect(&self) -> f64 {
@@ -597,9 +608,6 @@ fn default_mpm_friction() -> f64 {
 }
 fn default_mpm_bulk() -> f64 {
     2.0e7
-}
-fn default_mpm_reference_inertial_number() -> f64 {
-    0.279
 }
 fn default_mpm_nmax() -> f64 {
     0.5
@@ -1581,7 +1589,27 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
             );
         }
     }
+    if let Some(i0) = m.reference_inertial_number {
+        v.positive("mpm.reference_inertial_number", i0);
+        if m.limit_friction_angle.is_none() {
+            v.fail(
+                "mpm.reference_inertial_number",
+                format!(
+                    "= {i0} shapes a rate-dependent friction that is off: set mpm.limit_friction_angle, or remove it"
+                ),
+            );
+        }
+    }
     if let Some(phi2) = m.limit_friction_angle {
+        if m.cohesion > 0.0 {
+            v.fail(
+                "mpm.limit_friction_angle",
+                format!(
+                    "= {phi2} needs a cohesionless soil (the rate-dependent friction is the mu(I) of dry grains), got mpm.cohesion = {}: set mpm.cohesion = 0, or remove mpm.limit_friction_angle",
+                    m.cohesion
+                ),
+            );
+        }
         if !(phi2 >= m.friction_angle && phi2 < 90.0) {
             v.fail(
                 "mpm.limit_friction_angle",
@@ -1592,7 +1620,6 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
             );
         }
     }
-    v.positive("mpm.reference_inertial_number", m.reference_inertial_number);
     v.positive("mpm.liquid_bulk_modulus", m.liquid_bulk_modulus);
     v.at_least("mpm.cavitation_threshold", m.cavitation_threshold, 0.0);
     v.open_range("mpm.max_porosity", m.max_porosity, 0.0, 1.0);

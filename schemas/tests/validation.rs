@@ -252,7 +252,7 @@ const BAD_MPM: &[(&str, &str, &str)] = &[
     ("mpm.dilatancy_cutoff_porosity=1", "mpm.dilatancy_cutoff_porosity", "(0, 1)"),
     ("mpm.limit_friction_angle=30", "mpm.limit_friction_angle", "[mpm.friction_angle, 90) = [35, 90)"),
     ("mpm.limit_friction_angle=90", "mpm.limit_friction_angle", "[mpm.friction_angle, 90)"),
-    ("mpm.reference_inertial_number=0", "mpm.reference_inertial_number", "> 0"),
+    ("mpm.reference_inertial_number=0.3", "mpm.reference_inertial_number", "rate-dependent friction that is off"),
     ("mpm.liquid_bulk_modulus=0", "mpm.liquid_bulk_modulus", "> 0"),
     ("mpm.cavitation_threshold=-1", "mpm.cavitation_threshold", ">= 0"),
     ("mpm.max_porosity=1", "mpm.max_porosity", "(0, 1)"),
@@ -301,6 +301,13 @@ fn bad_mpm_values_name_their_key() {
         assert!(e.names_key(key), "{set}: error does not name {key}: {e}");
         assert!(e.to_string().contains(reason), "{set}: reason should mention {reason:?}: {e}");
     }
+    // The rate-dependent friction's pairs: a cohesionless soil, a positive I_0.
+    let e = load(&MPM, &["mpm.cohesion=100", "mpm.limit_friction_angle=40"]).unwrap_err();
+    assert!(e.names_key("mpm.limit_friction_angle") && e.to_string().contains("cohesionless soil"), "{e}");
+    let e = load(&MPM, &["mpm.limit_friction_angle=40", "mpm.reference_inertial_number=0"]).unwrap_err();
+    assert!(e.names_key("mpm.reference_inertial_number") && e.to_string().contains("> 0"), "{e}");
+    let mu_i = load(&MPM, &["mpm.limit_friction_angle=40"]).unwrap().mpm().reference_inertial_number_in_effect();
+    assert_eq!(mu_i, 0.279);
     // The [mpm] values are checked whenever the table is present, whatever the method.
     let e = load(VALID, &["mpm.courant=2"]).unwrap_err();
     assert!(e.names_key("mpm.courant"), "{e}");

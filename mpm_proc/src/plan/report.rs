@@ -174,13 +174,14 @@ fn plan_materials(scene: &Scene, ts: &mpm::MpmTimeStep, p: &mut Plan) {
         ));
         if let Some(phi2) = m.limit_friction_angle {
             let (s1, s2) = (m.friction_angle.to_radians().sin(), phi2.to_radians().sin());
-            let at = |i: f64| (s1 + (s2 - s1) / (1.0 + m.reference_inertial_number / i)).asin().to_degrees();
+            let i0 = m.reference_inertial_number_in_effect();
+            let at = |i: f64| (s1 + (s2 - s1) / (1.0 + i0 / i)).asin().to_degrees();
             p.line(
                 "rate-dependent friction",
                 format!(
                     "mu(I): phi {} deg at rest to {phi2} deg, I_0 = {}; phi {:.1}, {:.1}, {:.1} deg at I = 0.01, 0.1, 1",
                     m.friction_angle,
-                    m.reference_inertial_number,
+                    i0,
                     at(0.01),
                     at(0.1),
                     at(1.0)
