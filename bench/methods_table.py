@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Both methods side by side (issue 20 part 5, docs/RESULTS.md "MPM beside
 DEM-LBM"): for each Table 1 case, the MPM's runout by the 0.5 % mass front
-and by the pile edge (the first deposit column lower than one grain, the
-DEM's rule), the liquid front at the end, and the mass front at t/t_ref =
+and by the pile edge (`runout_pile`, the DEM's rule; for summaries
+before session 32 the first deposit column lower than one grain), the liquid front at the end, and the mass front at t/t_ref =
 1, 2, 4, against the DEM(-LBM)'s from its runs (mean over the seeds
 found). Marks '*' where the pile edges differ by more than 20 %.
 
@@ -25,6 +25,10 @@ def at(front, t):
 
 
 def mpm_pile_edge(s):
+    # The DEM's rule, in the summary since session 32; before, the first
+    # element-wide deposit column whose highest point lies below one grain.
+    if s.get("runout_pile") is not None:
+        return s["runout_pile"]
     dep = s["deposit"]
     step = dep[1][0] - dep[0][0]
     x = next((x - step / 2 for x, h in dep if h < D), dep[-1][0] + step / 2)

@@ -87,7 +87,8 @@ pub struct RunSummary {
     /// flume's width (solid volume per bin over bin × width × (1 − n0))
     /// first falls below one grain diameter, from the back wall on
     /// ([`crate::measures::pile_edge`]). Robust to stray grains. Same form
-    /// as `front`; empty for methods without grains.
+    /// as `front`; the MPM's per metre of width, its points' grains m/ρ_s
+    /// (since session 32); empty for methods without grains.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub front_pile: Vec<FrontSample>,
     /// (L_f − L0)/L0 of `front_pile` at the end.
