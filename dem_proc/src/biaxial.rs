@@ -127,9 +127,10 @@ pub struct BiaxialSummary {
     /// how well the lateral wall held the confining stress where
     /// `final_friction_deg` is measured. Above a few per cent the test is
     /// no longer stress-controlled (the shear outruns the servo: on the lab
-    /// grains from I ≈ 3e-3, docs/dem.md "Element test"). NaN in records
-    /// written before session 32.
-    #[serde(default = "not_measured")]
+    /// grains from I ≈ 3e-3, docs/dem.md "Element test"). NaN (`null` in
+    /// JSON) without samples there, and in records written before
+    /// session 32.
+    #[serde(default = "not_measured", deserialize_with = "schemas::summary::nan_if_null")]
     pub final_lateral_stress_error: f64,
     /// Final porosity of the box and of its core.
     pub final_porosity: f64,

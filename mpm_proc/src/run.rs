@@ -649,7 +649,10 @@ fn record_frame(r: &mut MpmRun<'_>, rec: &mut Recording, rate: f64) -> Result<Me
 /// bins of width `bin` from `x0` by overlap: (the overlap's centre, its
 /// share) per bin it touches. Pre: half ≥ 0, bin > 0.
 fn spread(x: f64, half: f64, volume: f64, x0: f64, bin: f64) -> impl Iterator<Item = (f64, f64)> {
-    let (lo, hi) = (x - half, x + half);
+    debug_assert!(half.is_finite() && half >= 0.0 && bin > 0.0);
+    // A point held at the back wall keeps its whole domain in front of it.
+    let lo = (x - half).max(x0);
+    let hi = lo + 2.0 * half;
     let first = ((lo - x0) / bin).floor() as i64;
     let shared = half > 0.0 && x.is_finite();
     // A domain ending on a bin's boundary does not reach into the next bin.
@@ -713,13 +716,23 @@ mod pile_tests {
         assert_eq!(one.len(), 1);
         assert!((one[0].1 - 2.0).abs() < 1e-12);
         // A regular row of points 1 mm apart with 1 mm domains fills 2.5 mm
-        // bins evenly (by centre they would hold 2 and 3 points).
+        // bins evenly (by centre they would hold 2 and 3 points); a domain
+        // ending on a bin's boundary gives that bin nothing, not a share of 0
+        // beyond it.
         let mut bins = [0.0; 4];
         for i in 0..10 {
-            for (x, v) in spread((i as f64 + 0.5) * 1e-3, 0.5e-3, 1.0, 0.0, 2.5e-3).filter(|p| p.1 > 1e-12) {
+            for (x, v) in spread((i as f64 + 0.5) * 1e-3, 0.5e-3, 1.0, 0.0, 2.5e-3) {
                 bins[(x / 2.5e-3) as usize] += v;
             }
         }
         assert!(bins.iter().all(|b| (b - 2.5).abs() < 1e-9), "{bins:?}");
+        // No domain: the point whole, where it is; not finite: one share, which
+        // `pile_edge` skips.
+        assert_eq!(spread(1.3e-3, 0.0, 2.0, 0.0, 1e-3).collect::<Vec<_>>(), [(1.3e-3, 2.0)]);
+        assert_eq!(spread(f64::NAN, 0.1e-3, 2.0, 0.0, 1e-3).count(), 1);
+        // A point clamped to the back wall: its domain lies in front of it.
+        let held: Vec<(f64, f64)> = spread(0.0, 0.5e-3, 1.0, 0.0, 2.5e-3).collect();
+        assert_eq!(held.len(), 1);
+        assert!((held[0].0 - 0.5e-3).abs() < 1e-15 && (held[0].1 - 1.0).abs() < 1e-12, "{held:?}");
     }
 }

@@ -48,10 +48,11 @@ impl Row<'_> {
         }
     }
 
-    /// Where the deposit falls below one grain diameter: the DEM's own
-    /// measure (`runout_pile`, the width-averaged height), or on the MPM's
-    /// profile (the highest point top per bin) the first crossing of one
-    /// diameter, linear between bin centres.
+    /// Where the deposit falls below one grain diameter: the summary's
+    /// `runout_pile` (the DEM's width-averaged height; the MPM's since
+    /// session 32, by the same rule), or, for MPM summaries written before
+    /// it, on the profile (the highest point top per bin) the first
+    /// crossing of one diameter, linear between bin centres.
     pub fn pile_edge(&self) -> f64 {
         if let Some(p) = self.summary.runout_pile {
             return p;
