@@ -4,7 +4,7 @@
 //! initial stresses").
 
 use crate::plan::SceneMpm;
-use schemas::scene::{Face, InitialStress, MpmFloor, PackingSpec, Scene};
+use schemas::scene::{Face, InitialStress, MpmFloor, MpmSpec, PackingSpec, Scene};
 
 use crate::drag::DragLaw;
 use crate::grid::{Grid, GHOST};
@@ -89,13 +89,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         flip_share: [spec.flip_share_in_effect(), spec.liquid_flip_share_in_effect()],
         soil: skeleton,
         critical_soil: skeleton.without_dilatancy(),
-        inertial_friction: spec.limit_friction_angle.map(|phi2| InertialFriction {
-            sin_static: spec.friction_angle.to_radians().sin(),
-            sin_limit: phi2.to_radians().sin(),
-            reference_inertial_number: spec.reference_inertial_number_in_effect(),
-            grain_diameter: grain,
-            grain_density: rho_s,
-        }),
+        inertial_friction: inertial_friction(&spec, grain, rho_s),
         drag: DragLaw {
             grain_diameter: if grain.is_finite() { grain } else { 1e-3 },
             ergun_a: spec.ergun_a,
@@ -133,6 +127,19 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
     }
     let mpm = Mpm::new(params, grid, state, Fixities { base, gates: gate_nodes, contact });
     Ok(MpmSetup { mpm, gates, porosity_initial: n0, soil_top, notes })
+}
+
+/// The scene's rate-dependent friction (`mpm.limit_friction_angle`) for
+/// grains of diameter `grain_diameter` (m) and density `grain_density`
+/// (kg/m³); None when it is off.
+pub fn inertial_friction(spec: &MpmSpec, grain_diameter: f64, grain_density: f64) -> Option<InertialFriction> {
+    spec.limit_friction_angle.map(|phi2| InertialFriction {
+        sin_static: spec.friction_angle.to_radians().sin(),
+        sin_limit: phi2.to_radians().sin(),
+        reference_inertial_number: spec.reference_inertial_number_in_effect(),
+        grain_diameter,
+        grain_density,
+    })
 }
 
 /// What seeding the points needs to know of the two materials.

@@ -172,10 +172,12 @@ fn plan_materials(scene: &Scene, ts: &mpm::MpmTimeStep, p: &mut Plan) {
             n0,
             m.max_porosity
         ));
-        if let Some(phi2) = m.limit_friction_angle {
-            let (s1, s2) = (m.friction_angle.to_radians().sin(), phi2.to_radians().sin());
-            let i0 = m.reference_inertial_number_in_effect();
-            let at = |i: f64| (s1 + (s2 - s1) / (1.0 + i0 / i)).asin().to_degrees();
+        let soil = &s.particles[0];
+        if let (Some(phi2), Some(law)) =
+            (m.limit_friction_angle, crate::setup::inertial_friction(&m, soil.diameter, soil.density))
+        {
+            let i0 = law.reference_inertial_number;
+            let at = |i: f64| law.sin_friction(i).asin().to_degrees();
             p.line(
                 "rate-dependent friction",
                 format!(
