@@ -38,6 +38,14 @@ pub fn print(scene: &Scene) {
         d.gravity,
         d.walls.iter().map(|f| f.name()).collect::<Vec<_>>().join(" ")
     );
+    if let Some(g) = d.collapse_gravity {
+        // The push as a share of the weight: what the seepage comparison quotes.
+        let down = -d.gravity[2];
+        println!(
+            "run gravity  {g:?} m/s² from t = 0 (the preparation under gravity): a push of {:.3} of the weight along x",
+            g[0] / down
+        );
+    }
     for g in &s.gates {
         println!(
             "gate         {} at {:?}, normal {:?}, removed at t = {} s",

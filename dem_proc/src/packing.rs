@@ -22,7 +22,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use schemas::scene::{Face, PackingSpec, Scene};
+use schemas::scene::{DomainSpec, Face, PackingSpec, Scene};
 
 use crate::rng::SplitMix64;
 use crate::setup::{walls, DemSetup};
@@ -86,9 +86,12 @@ pub fn cache_dir() -> PathBuf {
 pub fn packing_key(scene: &Scene) -> u64 {
     let s = &scene.spec;
     let dem = scene.dem();
+    // The run's gravity does not touch the deposition: a pushed run shares
+    // the packing of the unpushed one.
+    let domain = DomainSpec { collapse_gravity: None, ..s.domain.clone() };
     let key = serde_json::json!({
         "version": PACKING_VERSION,
-        "domain": s.domain,
+        "domain": domain,
         "gates": s.gates.iter().map(|g| (g.point, g.normal)).collect::<Vec<_>>(),
         "particles": s.particles,
         "explicit": scene.explicit_spheres,

@@ -18,6 +18,9 @@ pub struct DemSetup {
     pub contact_duration: f64,
     pub steps_per_contact: f64,
     pub domain: ([f64; 3], [f64; 3]),
+    /// Gravity of the run, m/s²: `domain.collapse_gravity` where the scene
+    /// sets it, else `domain.gravity` (the deposition's, see
+    /// [`DemSetup::for_deposition`]).
     pub gravity: [f64; 3],
     pub max_diameter: f64,
 }
@@ -109,15 +112,17 @@ impl DemSetup {
             contact_duration: tc,
             steps_per_contact: tc / dt,
             domain: (scene.spec.domain.min, scene.spec.domain.max),
-            gravity: scene.spec.domain.gravity,
+            gravity: scene.spec.domain.collapse_gravity.unwrap_or(scene.spec.domain.gravity),
             max_diameter,
         }
     }
 
-    /// The same setup with the deposition's friction (denser packings).
+    /// The same setup with the deposition's friction (denser packings) and
+    /// `domain.gravity` (grains settle under it whatever the run's gravity).
     pub fn for_deposition(&self, scene: &Scene) -> Self {
         let dep = &scene.spec.deposition;
         let mut s = self.clone();
+        s.gravity = scene.spec.domain.gravity;
         // Deposition is dry even in a coupled scene: its step needs no LBM alignment.
         let dem = scene.dem();
         s.numerics.dt = dem.time_step.unwrap_or(s.contact_duration / dem.steps_per_contact);

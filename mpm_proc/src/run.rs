@@ -89,7 +89,8 @@ pub struct GravityPhase {
     pub wall_seconds: f64,
 }
 
-/// Runs the damped gravity phase with the gates held (docs/mpm.md), then
+/// Runs the damped gravity phase with the gates held (docs/mpm.md), under
+/// `domain.gravity` whatever the run's (`domain.collapse_gravity`), then
 /// zeroes the velocities and the clock.
 pub fn gravity_phase(scene: &Scene, mpm: &mut Mpm, stop: &AtomicBool, progress: &mut dyn Progress) -> GravityPhase {
     let spec = scene.mpm();
@@ -98,8 +99,10 @@ pub fn gravity_phase(scene: &Scene, mpm: &mut Mpm, stop: &AtomicBool, progress: 
     if spec.initial_stress != InitialStress::K0 || spec.gravity_phase_max_time <= 0.0 {
         return phase;
     }
-    let damping = mpm.params.damping;
+    let (damping, run_gravity) = (mpm.params.damping, mpm.params.gravity);
     mpm.params.damping = spec.gravity_phase_damping;
+    let g = scene.spec.domain.gravity;
+    mpm.params.gravity = [g[0], g[2]];
     let check_every = ((0.002 / mpm.params.dt).round() as u64).max(1);
     let mut last_progress = Instant::now();
     loop {
@@ -123,6 +126,7 @@ pub fn gravity_phase(scene: &Scene, mpm: &mut Mpm, stop: &AtomicBool, progress: 
     }
     phase.time = mpm.state.time;
     mpm.params.damping = damping;
+    mpm.params.gravity = run_gravity;
     for set in [&mut mpm.state.solid.set, &mut mpm.state.liquid.set] {
         set.set_velocity([0.0; 2]);
     }

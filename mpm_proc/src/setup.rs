@@ -58,7 +58,10 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
     };
     let step = scene.mpm_time_step();
     let (dt, c_max) = (step.dt, step.max_speed);
-    let gravity = [d.gravity[0], d.gravity[2]];
+    // The run's gravity; the gravity phase holds the column under `d.gravity`
+    // (`run::gravity_phase`).
+    let run_gravity = d.collapse_gravity.unwrap_or(d.gravity);
+    let gravity = [run_gravity[0], run_gravity[2]];
     let g_down = -d.gravity[2];
     let skeleton = MohrCoulomb::new(
         spec.young_modulus,

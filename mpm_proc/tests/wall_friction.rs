@@ -174,3 +174,37 @@ fn walls_carry_the_effective_weight_of_a_column_at_rest() {
         assert!((load / expected - 1.0).abs() < 0.005, "wall load {load} against {expected}");
     }
 }
+
+/// `domain.collapse_gravity`: the gravity phase settles the block under
+/// `domain.gravity` (vertical here, so it stays where it was put even
+/// though the run's push exceeds the floor's friction), and the run from
+/// there feels the push: a horizontal k g on a floor of friction μ < k
+/// drives the block at (k − μ) g.
+#[test]
+fn a_push_from_the_run_start_drives_the_block_at_k_minus_mu_g() {
+    let (mu, k) = (MU, 0.2);
+    let push = format!("domain.collapse_gravity=[{}, 0.0, {}]", k * G, -G);
+    let friction = format!("mpm.wall_friction={mu}");
+    let scene = common::validation_scene(
+        "mpm_sliding_block",
+        &[push.as_str(), friction.as_str(), "mpm.initial_stress=\"k0\"", "mpm.gravity_phase_max_time=0.05"],
+    );
+    let mut mpm = build(&scene).unwrap().mpm;
+    let (x_start, _) = centre(&mpm);
+    let phase = gravity_phase(&scene, &mut mpm, &AtomicBool::new(false), &mut Quiet);
+    let (x_settled, _) = centre(&mpm);
+    // Under the push the phase's 0.05 s would carry the block ≥ 1 mm (half
+    // of (k − μ) g t² even with the damping's loss); it settles by microns.
+    eprintln!("gravity phase: {} steps, moved {:.2e} m", phase.steps, x_settled - x_start);
+    assert!(phase.steps > 0, "the scene's k0 start runs a gravity phase");
+    assert!((x_settled - x_start).abs() < 1e-5, "the block moved {} m in the gravity phase", x_settled - x_start);
+    let t_end = 0.05;
+    for _ in 0..(t_end / mpm.params.dt).round() as usize {
+        mpm.step();
+    }
+    let (x, v) = centre(&mpm);
+    let a = (k - mu) * G;
+    eprintln!("pushed run: v {v:.5} m/s against (k − μ) g t = {:.5}, moved {:.3e} m", a * t_end, x - x_settled);
+    // 2 %, the sliding block's bar (its elastic ringing on the mean velocity).
+    assert!((v / (a * t_end) - 1.0).abs() < 0.02, "velocity {v} against {}", a * t_end);
+}

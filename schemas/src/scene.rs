@@ -71,6 +71,17 @@ pub struct DomainSpec {
     pub max: [f64; 3],
     /// Gravitational acceleration, m/s².
     pub gravity: [f64; 3],
+    /// Gravity during the run itself, m/s², where it differs from the
+    /// preparation's: the DEM deposits its grains and the MPM runs its
+    /// gravity phase under `gravity`; from t = 0 (the run, gates released at
+    /// their times) both feel this one. A horizontal part is a uniform push
+    /// per unit mass, such as the seepage push a draining liquid gives a
+    /// grain pile (docs/RESULTS.md, "A steady push on dry piles"). The
+    /// reference time stays √(H0/|gravity|). DEM and MPM scenes only (the
+    /// LBM's liquid is prepared hydrostatic under `gravity`). Default: none
+    /// (the run under `gravity`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub collapse_gravity: Option<[f64; 3]>,
     /// Faces of the box that are solid walls: any of
     /// `x_min x_max y_min y_max z_min z_max`. Faces not listed are open.
     pub walls: Vec<Face>,
@@ -1147,6 +1158,7 @@ impl Scene {
         } else if let Some(named) = spec.scene.method {
             check_method_matches_blocks(&mut v, &spec, named);
         }
+        check_collapse_gravity(&mut v, &spec);
 
         v.finish()?;
         Ok(Scene { spec, base_dir: base_dir.to_path_buf(), gate_normals, explicit_spheres })
@@ -1216,6 +1228,9 @@ fn check_domain(v: &mut Validator, d: &DomainSpec) {
         v.finite(&format!("domain.min[{a}]"), d.min[a]);
         v.finite(&format!("domain.max[{a}]"), d.max[a]);
         v.finite(&format!("domain.gravity[{a}]"), d.gravity[a]);
+        if let Some(g) = d.collapse_gravity {
+            v.finite(&format!("domain.collapse_gravity[{a}]"), g[a]);
+        }
         if d.max[a] <= d.min[a] {
             v.fail(&format!("domain.max[{a}]"), format!("must be > domain.min[{a}] = {}, got {}", d.min[a], d.max[a]));
         }
@@ -1224,6 +1239,24 @@ fn check_domain(v: &mut Validator, d: &DomainSpec) {
         if d.walls[..i].contains(f) {
             v.fail("domain.walls", format!("face {} listed twice", f.name()));
         }
+    }
+}
+
+/// `domain.collapse_gravity`: only where no LBM runs (its liquid starts
+/// hydrostatic under `gravity`), in the MPM's plane for the MPM.
+fn check_collapse_gravity(v: &mut Validator, spec: &SceneSpec) {
+    let Some(g) = spec.domain.collapse_gravity else { return };
+    match method_of(spec) {
+        Method::DemDry => {}
+        Method::Mpm if g[1] != 0.0 => v.fail(
+            "domain.collapse_gravity",
+            format!("the MPM is 2D in the x–z plane: collapse_gravity[1] must be 0, got {g:?}"),
+        ),
+        Method::Mpm => {}
+        Method::LbmFluid | Method::DemLbm => v.fail(
+            "domain.collapse_gravity",
+            "the LBM's liquid is prepared hydrostatic under domain.gravity and cannot change gravity at release: remove collapse_gravity, or run the grains alone (method dem or mpm)".into(),
+        ),
     }
 }
 

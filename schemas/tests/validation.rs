@@ -382,3 +382,26 @@ fn saturated_column_runs_as_mpm() {
     assert_eq!(s.method(), Method::Mpm);
     assert_eq!(s.mpm().element_size, 0.004);
 }
+
+/// `domain.collapse_gravity`: grains alone (DEM or MPM) take it; a scene
+/// with a lattice refuses it (its liquid starts hydrostatic under
+/// `domain.gravity`), the MPM refuses an out-of-plane part, and NaN is
+/// refused like any other value. It leaves t_ref on `domain.gravity`.
+#[test]
+fn collapse_gravity_is_for_grains_alone() {
+    let push = "domain.collapse_gravity=[1.962, 0.0, -9.81]";
+    let s = load(VALID, &[push]).unwrap();
+    assert_eq!(s.spec.domain.collapse_gravity, Some([1.962, 0.0, -9.81]));
+    assert!((s.reference_time() - 0.0782).abs() < 5e-5, "t_ref from domain.gravity");
+    let resolved = s.to_toml();
+    assert!(resolved.contains("collapse_gravity"), "the resolved scene keeps the push");
+    assert!(!load(VALID, &[]).unwrap().to_toml().contains("collapse_gravity"), "and omits it when unset");
+    load(SATURATED, &[push, "scene.method=mpm"]).unwrap();
+
+    let e = load(SATURATED, &[push]).unwrap_err();
+    assert!(e.to_string().contains("domain.collapse_gravity") && e.to_string().contains("hydrostatic"), "{e}");
+    let e = load(SATURATED, &["domain.collapse_gravity=[0.0, 1.0, -9.81]", "scene.method=mpm"]).unwrap_err();
+    assert!(e.to_string().contains("collapse_gravity[1] must be 0"), "{e}");
+    let e = load(VALID, &["domain.collapse_gravity=[nan, 0.0, -9.81]"]).unwrap_err();
+    assert!(e.to_string().contains("domain.collapse_gravity[0]"), "{e}");
+}
