@@ -1,0 +1,73 @@
+#!/usr/bin/env python3
+"""A steady push on dry piles (docs/RESULTS.md, "A steady push on dry
+piles"): the H0 = 0.06 m dry column of each method run with a horizontal
+gravity k g from the gate's release on (`domain.collapse_gravity`), the
+grains prepared without it. For each run: the pile edge (`front_pile`, the
+DEM's rule) at t/t_ref = 1, 2, 4, 8 and at the end, from when
+on it stays within a grain (its bin) of its end, its ratio to the same
+method's unpushed run, when it stopped, and the deposit's downstream
+surface slope: the least-squares slope of the deposit's height where it is
+between 0.2 and 0.8 of its highest, from the highest down to where it
+first falls below 0.2 of it. The angle
+the pile holds against the pushed gravity is atan(slope) + atan(k).
+
+usage: python3 bench/push_table.py LABEL:DIR_K0:DIR_K1:... [LABEL:...] --k 0,0.1,0.2
+  DIR/summary.json  (coupler run ... --set domain.collapse_gravity=[k g, 0, -g])
+"""
+import json
+import math
+import sys
+
+
+# One grain (2.5 mm) over L0 (0.04 m): the pile edge's bin, so its noise.
+GRAIN = 2.5e-3 / 0.04
+
+
+def at(front, t):
+    return min(front, key=lambda f: abs(f["t_norm"] - t))["x_norm"]
+
+
+def slope(deposit):
+    """Downstream surface slope of a deposit [[x, height], ...] (positive = falling)."""
+    top = max(range(len(deposit)), key=lambda i: deposit[i][1])
+    h_max = deposit[top][1]
+    pts = []
+    for x, h in deposit[top:]:
+        if h < 0.2 * h_max:
+            break  # the pile's foot: grains beyond it (rolled to the end wall) are not its surface
+        if h <= 0.8 * h_max:
+            pts.append((x, h))
+    if len(pts) < 3:
+        return float("nan")
+    n = len(pts)
+    mx = sum(x for x, _ in pts) / n
+    mh = sum(h for _, h in pts) / n
+    num = sum((x - mx) * (h - mh) for x, h in pts)
+    den = sum((x - mx) ** 2 for x, _ in pts)
+    return -num / den
+
+
+args = sys.argv[1:]
+ks = [0.0, 0.1, 0.2]
+if "--k" in args:
+    i = args.index("--k")
+    ks = [float(v) for v in args[i + 1].split(",")]
+    del args[i:i + 2]
+
+print("| set | push k | pile edge at 1 / 2 / 4 / 8 t_ref | end | end / unpushed | edge within a grain of its end from (t/t_ref) "
+      "| run ends (t/t_ref) | 0.5 % front | surface slope | angle held (°) |")
+print("|---|---|---|---|---|---|---|---|---|---|")
+for spec in args:
+    label, *dirs = spec.split(":")
+    base = None
+    for k, d in zip(ks, dirs):
+        s = json.load(open(f"{d}/summary.json"))
+        fp = s["front_pile"]
+        end = s["runout_pile"]
+        base = end if base is None else base
+        sl = slope(s["deposit"])
+        held = math.degrees(math.atan(sl) + math.atan(k))
+        settled = next(f["t_norm"] for f in fp if all(abs(g["x_norm"] - end) <= GRAIN for g in fp if g["t"] >= f["t"]))
+        ends = s["sim_time"] / s["t_ref"]
+        print(f"| {label} | {k:.2f} | {at(fp, 1):.2f} / {at(fp, 2):.2f} / {at(fp, 4):.2f} / {at(fp, 8):.2f} | {end:.3f} | "
+              f"{end / base:.2f} | {settled:.1f} | {ends:.1f} ({s['status']}) | {s['runout']:.2f} | {sl:.3f} | {held:.1f} |")
