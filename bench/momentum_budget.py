@@ -7,6 +7,11 @@ the rest, given by the walls and the floor (P_x - J_fluid: the back wall
 pushes, the floor's friction holds back). Momenta are scaled by
 M sqrt(g_eff H0), M the grains' mass, g_eff = g dry and g' saturated.
 
+For an MPM run (`/mpm/metrics` liquid_force_on_solid_x, session 33) the
+liquid's x-force on the solid over its buoyant weight, each value the
+mean of the frames within 0.25 t_ref of the time (a frame samples one
+step's force, which the pressure waves make noisy).
+
 usage: python3 bench/momentum_budget.py RUN_DIR [RUN_DIR ...]
 """
 import json, sys, tomllib
@@ -14,6 +19,27 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 times = [0.5, 1, 1.5, 2, 3, 4, 6, 8]
+
+
+def mpm_push(run, scene, g, rho_s, rho_l):
+    rows = []
+    with open(f"{run}/run.mcap", "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, _, _, m in reader.iter_decoded_messages(topics=["/mpm/metrics"]):
+            rows.append(m)
+    # Buoyant weight of the grains, N/m: the solid points carry the grains' mass.
+    weight = rows[0].solid_mass * g * (rho_s - rho_l) / rho_s
+    print(f"{run} (MPM): the liquid's force on the solid / the grains' buoyant weight")
+    print("| t/t_ref | x | z |")
+    print("|---|---|---|")
+    for t in times:
+        near = [r for r in rows if abs(r.t_norm - t) <= 0.25]
+        if not near:
+            continue
+        fx = sum(r.liquid_force_on_solid_x for r in near) / len(near)
+        fz = sum(r.liquid_force_on_solid_z for r in near) / len(near)
+        print(f"| {t:g} | {fx / weight:+.3f} | {fz / weight:+.3f} |")
+
 for run in sys.argv[1:]:
     scene = tomllib.load(open(f"{run}/scene.toml", "rb"))
     g = -scene["domain"]["gravity"][2]
@@ -23,6 +49,9 @@ for run in sys.argv[1:]:
     rho_l = scene["fluids"][0]["density"] if saturated else 0.0
     g_eff = g * (rho_s - rho_l) / rho_s
     summary = json.load(open(f"{run}/summary.json"))
+    if summary["method"] == "mpm":
+        mpm_push(run, scene, g, rho_s, rho_l)
+        continue
     rows = []
     with open(f"{run}/run.mcap", "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])

@@ -615,6 +615,7 @@ fn record_frame(r: &mut MpmRun<'_>, rec: &mut Recording, rate: f64) -> Result<Me
             |p: usize| [speed(&l.set, p), l.pressure[p], if l.free_surface[p] { 1.0 } else { 0.0 }, l.set.volume[p]];
         let cloud = cloud_of(&l.set, t, y, ["speed", "pore_pressure", "free_surface", "volume"], liquid_fields);
         rec.log(ch.liquid, t, &cloud)?;
+        let liquid_force = mpm.liquid_force_on_solid();
         let metrics = MpmMetrics {
             t,
             t_norm: t / t_ref,
@@ -643,6 +644,8 @@ fn record_frame(r: &mut MpmRun<'_>, rec: &mut Recording, rate: f64) -> Result<Me
             potential_energy_liquid: l.set.potential_energy(mpm.params.gravity, mpm.grid.origin),
             wall_normal_load: mpm.wall_forces.normal_load,
             wall_friction_force: mpm.wall_forces.friction,
+            liquid_force_on_solid_x: liquid_force[0],
+            liquid_force_on_solid_z: liquid_force[1],
         };
         rec.log(ch.metrics, t, &metrics)?;
     }

@@ -227,6 +227,10 @@ struct NodeUpdate {
     /// the nodal drag coefficient Q (N·s/m³ per metre of width).
     force: [[f64; 2]; 2],
     drag: f64,
+    /// The liquid's stress share in `force[0]` (N/m): −(1 − n) ∇·σ_L and
+    /// the porosity-gradient term, without the pore pressure under the
+    /// implicit scheme (there in `Implicit::pressure_force[0]`).
+    liquid_on_solid: [f64; 2],
 }
 
 /// What the grid-to-points map reads at one node, gathered once per node
@@ -640,6 +644,40 @@ impl Mpm {
         self.state.steps += 1;
     }
 
+    /// The force the liquid put on the solid over the last step, summed over
+    /// the nodes, N/m (per metre of width), [x, z]: at each node with solid,
+    /// the liquid's stress share (pore pressure and viscous stress, with
+    /// the porosity-gradient term) and the drag Q (v_L − v_S) at the
+    /// step's end velocities (the drag is implicit in them), over the
+    /// nodes free along each axis. Where a wall holds a node the wall takes
+    /// its share: the nodal forces of a stress field sum to zero over all
+    /// nodes (the shape functions partition unity), so the pressure's
+    /// resultant on the grains is what the free nodes carry and the held
+    /// ones balance. At rest in still water it is the buoyancy
+    /// ρ_L g (1 − n) A, A the submerged area, less the half element row on
+    /// the floor's nodes; a water table sloping at i adds the seepage push
+    /// ρ_L g i per unit volume along it. Post: [0, 0] before the first step.
+    pub fn liquid_force_on_solid(&self) -> [f64; 2] {
+        let (dt, tol) = (self.params.dt, self.mass_tolerance);
+        let pressure = self.implicit.as_ref().map(|i| &i.pressure_force[0]);
+        let mut total = [0.0; 2];
+        for node in self.active_nodes() {
+            let s = &self.sums[node];
+            if s.mass_s <= tol {
+                continue;
+            }
+            let u = &self.accel[node];
+            let drag = if s.mass_l > tol { u.drag } else { 0.0 };
+            for d in (0..2).filter(|&d| self.mask[node][d] != 0.0) {
+                let vs = self.velocity_s[node][d] + dt * u.a[0][d];
+                let vl = self.velocity_l[node][d] + dt * u.a[1][d];
+                let p = pressure.map_or(0.0, |f| f[node][d]);
+                total[d] += u.liquid_on_solid[d] + p + drag * (vl - vs);
+            }
+        }
+        total
+    }
+
     /// Kinetic energy of the solid and of the liquid momenta as the grid
     /// holds them, Σ_I |p_I|²/(2 m_I) over the nodes, J/m, from the map at
     /// the start of the last step (fixities not applied). Under FLIP never
@@ -1021,6 +1059,7 @@ impl Mpm {
         self.for_active_nodes(&mut accel, |node, out| {
             let mut fs = [0.0; 2];
             let mut fl = [0.0; 2];
+            let mut from_liquid = [0.0; 2];
             let mut q = 0.0;
             let mut back = [[0.0; 2]; 2];
             Self::gather(ss, row, node, |pt, n, gr| {
@@ -1046,8 +1085,13 @@ impl Mpm {
                 let div = [f[0] * gr[0] + f[2] * gr[1], f[2] * gr[0] + f[1] * gr[1]];
                 fl[0] += n * m * g[0] - porosity * div[0] - n * f[4];
                 fl[1] += n * m * g[1] - porosity * div[1] - n * f[5];
-                fs[0] += -(1.0 - porosity) * div[0] + n * f[4];
-                fs[1] += -(1.0 - porosity) * div[1] + n * f[5];
+                let share = [-(1.0 - porosity) * div[0] + n * f[4], -(1.0 - porosity) * div[1] + n * f[5]];
+                // Added to the solid's force point by point, as before the
+                // diagnostic sum existed: the force's rounding is unchanged.
+                fs[0] += share[0];
+                fs[1] += share[1];
+                from_liquid[0] += share[0];
+                from_liquid[1] += share[1];
             });
             let s = &sums[node];
             let (vs, vl) = (vs_all[node], vl_all[node]);
@@ -1095,7 +1139,7 @@ impl Mpm {
             for (phase, mass) in [(0, s.mass_s), (1, s.mass_l)] {
                 back[phase] = if mass > tol { [back[phase][0] / mass, back[phase][1] / mass] } else { [0.0; 2] };
             }
-            *out = NodeUpdate { a, filtered: back, wall_load, force: [fs, fl], drag: q };
+            *out = NodeUpdate { a, filtered: back, wall_load, force: [fs, fl], drag: q, liquid_on_solid: from_liquid };
         });
         self.accel = accel;
     }
