@@ -6,7 +6,8 @@ grains prepared without it. For each run: the pile edge (`front_pile`, the
 DEM's rule) at t/t_ref = 1, 2, 4, 8 and at the end, from when
 on it stays within a grain (its bin) of its end, its ratio to the same
 method's unpushed run, when it stopped, and the deposit's downstream
-surface slope: the least-squares slope of the deposit's height where it is
+surface slope: the least-squares slope of the deposit's height (behind
+the pile edge) where it is
 between 0.2 and 0.8 of its highest, from the highest down to where it
 first falls below 0.2 of it. The angle
 the pile holds against the pushed gravity is atan(slope) + atan(k).
@@ -27,8 +28,11 @@ def at(front, t):
     return min(front, key=lambda f: abs(f["t_norm"] - t))["x_norm"]
 
 
-def slope(deposit):
-    """Downstream surface slope of a deposit [[x, height], ...] (positive = falling)."""
+def slope(deposit, edge):
+    """Downstream surface slope of a deposit [[x, height], ...] (positive =
+    falling) behind its pile edge `edge` (m): grains rolled on to the end
+    wall and heaped there are not the pile."""
+    deposit = [b for b in deposit if b[0] <= edge]
     top = max(range(len(deposit)), key=lambda i: deposit[i][1])
     h_max = deposit[top][1]
     pts = []
@@ -65,7 +69,7 @@ for spec in args:
         fp = s["front_pile"]
         end = s["runout_pile"]
         base = end if base is None else base
-        sl = slope(s["deposit"])
+        sl = slope(s["deposit"], fp[-1]["x"])
         held = math.degrees(math.atan(sl) + math.atan(k))
         settled = next(f["t_norm"] for f in fp if all(abs(g["x_norm"] - end) <= GRAIN for g in fp if g["t"] >= f["t"]))
         ends = s["sim_time"] / s["t_ref"]
