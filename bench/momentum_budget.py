@@ -8,9 +8,9 @@ pushes, the floor's friction holds back). Momenta are scaled by
 M sqrt(g_eff H0), M the grains' mass, g_eff = g dry and g' saturated.
 
 For an MPM run (`/mpm/metrics` liquid_force_on_solid_x, session 33) the
-liquid's x-force on the solid over its buoyant weight, each value the
-mean of the frames within 0.25 t_ref of the time (a frame samples one
-step's force, which the pressure waves make noisy).
+liquid's force on the solid over the grains' buoyant weight, each value
+the mean of the frames within 0.25 t_ref of the time (each frame's is
+already the mean over its steps).
 
 usage: python3 bench/momentum_budget.py RUN_DIR [RUN_DIR ...]
 """
@@ -27,6 +27,8 @@ def mpm_push(run, scene, g, rho_s, rho_l):
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         for _, _, _, m in reader.iter_decoded_messages(topics=["/mpm/metrics"]):
             rows.append(m)
+    if not hasattr(rows[0], "liquid_force_on_solid_x"):
+        sys.exit(f"{run}: its /mpm/metrics has no liquid_force_on_solid_x (recorded since session 33): run it again")
     # Buoyant weight of the grains, N/m: the solid points carry the grains' mass.
     weight = rows[0].solid_mass * g * (rho_s - rho_l) / rho_s
     print(f"{run} (MPM): the liquid's force on the solid / the grains' buoyant weight")

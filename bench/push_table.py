@@ -4,8 +4,8 @@ piles"): the H0 = 0.06 m dry column of each method run with a horizontal
 gravity k g from the gate's release on (`domain.collapse_gravity`), the
 grains prepared without it. For each run: the pile edge (`front_pile`, the
 DEM's rule) at t/t_ref = 1, 2, 4, 8 and at the end, from when
-on it stays within a grain (its bin) of its end, its ratio to the same
-method's unpushed run, when it stopped, and the deposit's downstream
+on it stays within a grain (its bin) of its end, its ratio to the
+set's first run (the unpushed one when --k starts at 0), when it stopped, and the deposit's downstream
 surface slope: the least-squares slope of the deposit's height (behind
 the pile edge) where it is
 between 0.2 and 0.8 of its highest, from the highest down to where it
@@ -58,7 +58,7 @@ if "--k" in args:
     ks = [float(v) for v in args[i + 1].split(",")]
     del args[i:i + 2]
 
-print("| set | push k | pile edge at 1 / 2 / 4 / 8 t_ref | end | end / unpushed | edge within a grain of its end from (t/t_ref) "
+print("| set | push k | pile edge at 1 / 2 / 4 / 8 t_ref | end | end / first k's | edge within a grain of its end from (t/t_ref) "
       "| run ends (t/t_ref) | 0.5 % front | surface slope | angle held (°) |")
 print("|---|---|---|---|---|---|---|---|---|---|")
 for spec in args:
@@ -66,12 +66,15 @@ for spec in args:
     base = None
     for k, d in zip(ks, dirs):
         s = json.load(open(f"{d}/summary.json"))
-        fp = s["front_pile"]
-        end = s["runout_pile"]
+        fp = s.get("front_pile")
+        end = s.get("runout_pile")
+        if not fp or end is None:
+            sys.exit(f"{d}: no pile edge in its summary (MPM summaries carry it since session 32)")
         base = end if base is None else base
         sl = slope(s["deposit"], fp[-1]["x"])
         held = math.degrees(math.atan(sl) + math.atan(k))
-        settled = next(f["t_norm"] for f in fp if all(abs(g["x_norm"] - end) <= GRAIN for g in fp if g["t"] >= f["t"]))
+        settled = next((f["t_norm"] for f in fp if all(abs(g["x_norm"] - end) <= GRAIN for g in fp if g["t"] >= f["t"])),
+                       float("nan"))
         ends = s["sim_time"] / s["t_ref"]
         print(f"| {label} | {k:.2f} | {at(fp, 1):.2f} / {at(fp, 2):.2f} / {at(fp, 4):.2f} / {at(fp, 8):.2f} | {end:.3f} | "
               f"{end / base:.2f} | {settled:.1f} | {ends:.1f} ({s['status']}) | {s['runout']:.2f} | {sl:.3f} | {held:.1f} |")

@@ -39,12 +39,10 @@ pub fn print(scene: &Scene) {
         d.walls.iter().map(|f| f.name()).collect::<Vec<_>>().join(" ")
     );
     if let Some(g) = d.collapse_gravity {
-        // The push as a share of the weight: what the seepage comparison quotes.
-        let down = -d.gravity[2];
-        println!(
-            "run gravity  {g:?} m/s² from t = 0 (the preparation under gravity): a push of {:.3} of the weight along x",
-            g[0] / down
-        );
+        // The push as a share of the run's weight: what the seepage comparison quotes.
+        let push =
+            if g[2] < 0.0 { format!(": a push of {:.3} of the weight along x", -g[0] / g[2]) } else { String::new() };
+        println!("run gravity  {g:?} m/s² from t = 0 (the preparation under gravity){push}");
     }
     for g in &s.gates {
         println!(

@@ -23,7 +23,7 @@ use schemas::summary::{MpmDetails, RunSummary, Throughput};
 use schemas::topics;
 
 use crate::setup::{build, MpmSetup, SetupError};
-use crate::solver::{Mpm, MpmState, PointSet};
+use crate::solver::{LiquidImpulse, Mpm, MpmState, PointSet};
 
 /// Version of the `/mpm/state` bincode layout.
 pub const STATE_VERSION: u32 = 2;
@@ -230,6 +230,8 @@ struct MpmCheckpoint<S = MpmState, G = Gathered, P = GravityPhase> {
     liquid_mass0: f64,
     /// The pore-pressure peak since the last frame.
     pore_pressure_peak: f64,
+    /// The liquid's impulse on the solid since the last frame.
+    liquid_impulse: LiquidImpulse,
 }
 
 /// The MPM as the run driver steps it, with what its frames and summary need.
@@ -297,6 +299,7 @@ fn run_on_pool(
             mpm.state = c.state;
             mpm.apply_gate_fixities();
             mpm.restore_pore_pressure_peak(c.pore_pressure_peak);
+            mpm.restore_liquid_impulse(c.liquid_impulse);
             let msg = file.resumed_line(path);
             progress.log(&msg);
             rec.log(file.driver.time, log_level::INFO, &msg)?;
@@ -319,6 +322,7 @@ fn run_on_pool(
             }
             release_gates(&mut mpm, &gates, &mut rec)?;
             mpm.take_pore_pressure_peak(); // the gravity phase's are not the collapse's
+            mpm.take_liquid_impulse();
             MpmRun::new(scene, mpm, gates, channels, gravity, porosity_initial, soil_top)
         }
     };
@@ -440,6 +444,7 @@ impl Solver for MpmRun<'_> {
             solid_mass0: self.solid_mass0,
             liquid_mass0: self.liquid_mass0,
             pore_pressure_peak: self.mpm.pore_pressure_peak(),
+            liquid_impulse: self.mpm.liquid_impulse(),
         };
         checkpoint::encode_into(&c, out)
     }
@@ -575,6 +580,7 @@ fn record_frame(r: &mut MpmRun<'_>, rec: &mut Recording, rate: f64) -> Result<Me
     let (t_ref, x0, l0) = (r.scene.reference_time(), r.scene.spec.domain.min[0], an.column_length);
     let y = r.mid_width;
     let peak_p = r.mpm.take_pore_pressure_peak();
+    let liquid_force = r.mpm.take_liquid_impulse().mean_force();
     let solid_fraction = 1.0 - r.porosity_initial;
     let mpm = &r.mpm;
     let frames = &mut r.gathered;
@@ -615,7 +621,6 @@ fn record_frame(r: &mut MpmRun<'_>, rec: &mut Recording, rate: f64) -> Result<Me
             |p: usize| [speed(&l.set, p), l.pressure[p], if l.free_surface[p] { 1.0 } else { 0.0 }, l.set.volume[p]];
         let cloud = cloud_of(&l.set, t, y, ["speed", "pore_pressure", "free_surface", "volume"], liquid_fields);
         rec.log(ch.liquid, t, &cloud)?;
-        let liquid_force = mpm.liquid_force_on_solid();
         let metrics = MpmMetrics {
             t,
             t_norm: t / t_ref,

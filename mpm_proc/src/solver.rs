@@ -437,8 +437,33 @@ pub struct Mpm {
     /// Largest pore pressure at the end of any step since the recorder last
     /// took it (`take_pore_pressure_peak`), Pa: a diagnostic, not state.
     pore_pressure_peak: f64,
+    /// The liquid's impulse on the solid since the recorder last took it
+    /// (`take_liquid_impulse`), N s/m along [x, z], and the time it covers, s:
+    /// a diagnostic, not state.
+    liquid_impulse: LiquidImpulse,
     /// The implicit pressure's scratch (`Params::implicit_pressure`).
     implicit: Option<Box<ImplicitPressure>>,
+}
+
+/// The liquid's impulse on the solid over an interval of steps
+/// (`Mpm::liquid_force_on_solid`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct LiquidImpulse {
+    /// Σ F Δt over the interval's steps, N s/m, [x, z].
+    pub impulse: [f64; 2],
+    /// Σ Δt, s.
+    pub time: f64,
+}
+
+impl LiquidImpulse {
+    /// The interval's mean force, N/m; [0, 0] over an empty interval.
+    pub fn mean_force(&self) -> [f64; 2] {
+        if self.time > 0.0 {
+            [self.impulse[0] / self.time, self.impulse[1] / self.time]
+        } else {
+            [0.0; 2]
+        }
+    }
 }
 
 /// Sums over the frictional wall nodes (`Fixities::contact`) of one step,
@@ -538,6 +563,7 @@ impl Mpm {
             timing: false,
             wall_forces: WallForces::default(),
             pore_pressure_peak: 0.0,
+            liquid_impulse: LiquidImpulse::default(),
             implicit: None,
             state,
         };
@@ -587,6 +613,23 @@ impl Mpm {
         std::mem::take(&mut self.pore_pressure_peak)
     }
 
+    /// The liquid's impulse on the solid since the last
+    /// [`Mpm::take_liquid_impulse`] (a checkpoint carries it).
+    pub fn liquid_impulse(&self) -> LiquidImpulse {
+        self.liquid_impulse
+    }
+
+    /// Sets the running impulse (a resumed run continues the interrupted one's).
+    pub fn restore_liquid_impulse(&mut self, impulse: LiquidImpulse) {
+        self.liquid_impulse = impulse;
+    }
+
+    /// The liquid's impulse on the solid since the last call, and starts a
+    /// new interval.
+    pub fn take_liquid_impulse(&mut self) -> LiquidImpulse {
+        std::mem::take(&mut self.liquid_impulse)
+    }
+
     /// What the implicit pressure solves have cost so far (None under the
     /// explicit scheme).
     pub fn pressure_stats(&self) -> Option<PressureStats> {
@@ -626,6 +669,14 @@ impl Mpm {
             }
             lap(&mut seconds.pressure);
         }
+        if !self.state.liquid.set.is_empty() {
+            // Before the walls' friction changes the contact nodes' solid velocity.
+            let force = self.liquid_force_on_solid();
+            let dt = self.params.dt;
+            let i = &mut self.liquid_impulse;
+            i.impulse = [i.impulse[0] + force[0] * dt, i.impulse[1] + force[1] * dt];
+            i.time += dt;
+        }
         self.apply_wall_friction();
         lap(&mut seconds.wall_friction);
         self.update_velocities();
@@ -644,7 +695,8 @@ impl Mpm {
         self.state.steps += 1;
     }
 
-    /// The force the liquid put on the solid over the last step, summed over
+    /// The force the liquid puts on the solid in the current step, once its
+    /// velocities are solved and before the walls' friction, summed over
     /// the nodes, N/m (per metre of width), [x, z]: at each node with solid,
     /// the liquid's stress share (pore pressure and viscous stress, with
     /// the porosity-gradient term) and the drag Q (v_L − v_S) at the
@@ -656,8 +708,9 @@ impl Mpm {
     /// ones balance. At rest in still water it is the buoyancy
     /// ρ_L g (1 − n) A, A the submerged area, less the half element row on
     /// the floor's nodes; a water table sloping at i adds the seepage push
-    /// ρ_L g i per unit volume along it. Post: [0, 0] before the first step.
-    pub fn liquid_force_on_solid(&self) -> [f64; 2] {
+    /// ρ_L g i per unit volume along it. `step` adds it, times Δt, to the
+    /// impulse the recorder takes ([`Mpm::take_liquid_impulse`]).
+    fn liquid_force_on_solid(&self) -> [f64; 2] {
         let (dt, tol) = (self.params.dt, self.mass_tolerance);
         let pressure = self.implicit.as_ref().map(|i| &i.pressure_force[0]);
         let mut total = [0.0; 2];

@@ -193,8 +193,9 @@ fn a_push_from_the_run_start_drives_the_block_at_k_minus_mu_g() {
     let (x_start, _) = centre(&mpm);
     let phase = gravity_phase(&scene, &mut mpm, &AtomicBool::new(false), &mut Quiet);
     let (x_settled, _) = centre(&mpm);
-    // Under the push the phase's 0.05 s would carry the block ≥ 1 mm (half
-    // of (k − μ) g t² even with the damping's loss); it settles by microns.
+    // Under the push the phase's 0.05 s would carry the block ~0.4 mm
+    // (½ (k − μ) g t², less the phase's damping of 0.7); it settles by
+    // 1e-11 m.
     eprintln!("gravity phase: {} steps, moved {:.2e} m", phase.steps, x_settled - x_start);
     assert!(phase.steps > 0, "the scene's k0 start runs a gravity phase");
     assert!((x_settled - x_start).abs() < 1e-5, "the block moved {} m in the gravity phase", x_settled - x_start);

@@ -168,9 +168,10 @@ pub struct MpmMetrics {
     /// the friction force applied, N/m; 0 without wall friction.
     pub wall_normal_load: f64,
     pub wall_friction_force: f64,
-    /// The force the liquid put on the solid in the last step, N/m, along
-    /// x and z (`Mpm::liquid_force_on_solid`): buoyancy upward at rest, and
-    /// the seepage push of a sloping water table; 0 dry.
+    /// The force the liquid put on the solid, N/m, along x and z, the mean
+    /// over the steps since the previous frame (`Mpm::take_liquid_impulse`):
+    /// buoyancy upward at rest, and the seepage push of a sloping water
+    /// table; 0 dry and in the first frame.
     pub liquid_force_on_solid_x: f64,
     pub liquid_force_on_solid_z: f64,
 }

@@ -1246,6 +1246,12 @@ fn check_domain(v: &mut Validator, d: &DomainSpec) {
 /// hydrostatic under `gravity`), in the MPM's plane for the MPM.
 fn check_collapse_gravity(v: &mut Validator, spec: &SceneSpec) {
     let Some(g) = spec.domain.collapse_gravity else { return };
+    if norm(g) == 0.0 {
+        v.fail(
+            "domain.collapse_gravity",
+            "a run without gravity has nothing to collapse: give a non-zero vector, or remove the key to run under domain.gravity".into(),
+        );
+    }
     match method_of(spec) {
         Method::DemDry => {}
         Method::Mpm if g[1] != 0.0 => v.fail(

@@ -404,4 +404,6 @@ fn collapse_gravity_is_for_grains_alone() {
     assert!(e.to_string().contains("collapse_gravity[1] must be 0"), "{e}");
     let e = load(VALID, &["domain.collapse_gravity=[nan, 0.0, -9.81]"]).unwrap_err();
     assert!(e.to_string().contains("domain.collapse_gravity[0]"), "{e}");
+    let e = load(VALID, &["domain.collapse_gravity=[0.0, 0.0, 0.0]"]).unwrap_err();
+    assert!(e.to_string().contains("nothing to collapse"), "{e}");
 }

@@ -551,3 +551,24 @@ fn every_shipped_campaign_file_checks() {
     }
     assert!(!dir.join("out").exists(), "--check writes nothing");
 }
+
+/// `--quick` on a campaign without a `[quick]` table is refused: it would
+/// silently run the full matrix.
+#[test]
+fn quick_without_a_quick_table_is_refused() {
+    let dir = scratch_dir("campaign_no_quick");
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = std::fs::read_to_string(repo_root().join("scenes/ceccato2020/push_dry.campaign.toml")).unwrap();
+    let without = &text[..text.find("[quick]").expect("the shipped file has a [quick] table")];
+    // Its scenes by absolute path, so the file can live outside `scenes/`
+    // (where the shipped-files test would find it).
+    let scenes = repo_root().join("scenes/ceccato2020");
+    let without = without.replace("scene = \"", &format!("scene = \"{}/", scenes.display()));
+    let file = dir.join("no_quick.campaign.toml");
+    std::fs::write(&file, without).unwrap();
+    let quick = campaign(&[file.to_str().unwrap(), "--quick", "--check"], &dir.join("out"), &dir.join("cache"));
+    let full = campaign(&[file.to_str().unwrap(), "--check"], &dir.join("out"), &dir.join("cache"));
+    let err = String::from_utf8_lossy(&quick.stderr);
+    assert!(!quick.status.success() && err.contains("[quick]"), "{err}");
+    assert!(full.status.success(), "{}", String::from_utf8_lossy(&full.stderr));
+}

@@ -182,6 +182,10 @@ struct QuickOverrides {
 }
 
 impl QuickOverrides {
+    fn is_empty(&self) -> bool {
+        self.all.is_empty() && self.dem.is_empty() && self.lbm.is_empty() && self.mpm.is_empty()
+    }
+
     fn for_method(&self, method: Method) -> Vec<String> {
         let mut set = self.all.clone();
         if matches!(method, Method::DemDry | Method::DemLbm) {
@@ -324,6 +328,12 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
         )
     })?;
     let spec: CampaignFile = toml::from_str(&text).map_err(|e| format!("{}: {e}", file.display()))?;
+    if args.quick && spec.quick.is_empty() {
+        return Err(format!(
+            "{}: --quick needs a [quick] table (e.g. `all = [\"output.end_time=0.2\"]`); without one it would run the full matrix: add the table, or run without --quick",
+            file.display()
+        ));
+    }
     let base = file.parent().map(Path::to_path_buf).unwrap_or_default();
     let out = args.out.clone().unwrap_or_else(|| {
         PathBuf::from("runs").join(format!("campaign-{}{}", spec.campaign.name, if args.quick { "-quick" } else { "" }))
