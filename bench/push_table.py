@@ -12,12 +12,14 @@ between 0.2 and 0.8 of its highest, from the highest down to where it
 first falls below 0.2 of it. The angle
 the pile holds against the pushed gravity is atan(slope) + atan(k).
 
-usage: python3 bench/push_table.py LABEL:DIR_K0:DIR_K1:... [LABEL:...] --k 0,0.1,0.2
-  DIR/summary.json  (coupler run ... --set domain.collapse_gravity=[k g, 0, -g])
+usage: python3 bench/push_table.py LABEL:DIR:DIR:... [LABEL:DIR:...]
+  DIR: a `coupler run` output (summary.json, scene.toml); k is read from
+  its scene's domain.collapse_gravity (k g, 0, -g), 0 without one
 """
 import json
 import math
 import sys
+import tomllib
 
 
 # One grain (2.5 mm) over L0 (0.04 m): the pile edge's bin, so its noise.
@@ -51,12 +53,14 @@ def slope(deposit, edge):
     return -num / den
 
 
+def push(run):
+    """k of a run: its scene's collapse_gravity x over its -z (0 without one)."""
+    domain = tomllib.load(open(f"{run}/scene.toml", "rb"))["domain"]
+    g = domain.get("collapse_gravity")
+    return g[0] / -g[2] if g else 0.0
+
+
 args = sys.argv[1:]
-ks = [0.0, 0.1, 0.2]
-if "--k" in args:
-    i = args.index("--k")
-    ks = [float(v) for v in args[i + 1].split(",")]
-    del args[i:i + 2]
 
 print("| set | push k | pile edge at 1 / 2 / 4 / 8 t_ref | end | end / first k's | edge within a grain of its end from (t/t_ref) "
       "| run ends (t/t_ref) | 0.5 % front | surface slope | angle held (°) |")
@@ -64,7 +68,8 @@ print("|---|---|---|---|---|---|---|---|---|---|")
 for spec in args:
     label, *dirs = spec.split(":")
     base = None
-    for k, d in zip(ks, dirs):
+    for d in dirs:
+        k = push(d)
         s = json.load(open(f"{d}/summary.json"))
         fp = s.get("front_pile")
         end = s.get("runout_pile")
