@@ -35,6 +35,8 @@ def slope(deposit, edge):
     falling) behind its pile edge `edge` (m): grains rolled on to the end
     wall and heaped there are not the pile."""
     deposit = [b for b in deposit if b[0] <= edge]
+    if not deposit:
+        return float("nan")
     top = max(range(len(deposit)), key=lambda i: deposit[i][1])
     h_max = deposit[top][1]
     pts = []
@@ -57,6 +59,8 @@ def push(run):
     """k of a run: its scene's collapse_gravity x over its -z (0 without one)."""
     domain = tomllib.load(open(f"{run}/scene.toml", "rb"))["domain"]
     g = domain.get("collapse_gravity")
+    if g and g[2] >= 0.0:
+        sys.exit(f"{run}: collapse_gravity {g} has no downward part: k (push over weight) is not defined")
     return g[0] / -g[2] if g else 0.0
 
 

@@ -386,6 +386,8 @@ pub struct StageSeconds {
     pub solve_nodes: f64,
     /// The implicit pore pressure: reference, assembly, solve, corrector.
     pub pressure: f64,
+    /// The liquid's force on the solid (`Mpm::take_liquid_impulse`), a diagnostic.
+    pub liquid_force: f64,
     /// Coulomb friction on the walls.
     pub wall_friction: f64,
     /// Grid to points: the points' velocities.
@@ -446,7 +448,9 @@ pub struct Mpm {
 }
 
 /// The liquid's impulse on the solid over an interval of steps
-/// (`Mpm::liquid_force_on_solid`).
+/// ([`Mpm::take_liquid_impulse`]): each step adds the force the liquid put
+/// on the solid (its stress share and the drag, over the nodes free along
+/// each axis) times Δt.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct LiquidImpulse {
     /// Σ F Δt over the interval's steps, N s/m, [x, z].
@@ -676,6 +680,7 @@ impl Mpm {
             let i = &mut self.liquid_impulse;
             i.impulse = [i.impulse[0] + force[0] * dt, i.impulse[1] + force[1] * dt];
             i.time += dt;
+            lap(&mut seconds.liquid_force);
         }
         self.apply_wall_friction();
         lap(&mut seconds.wall_friction);

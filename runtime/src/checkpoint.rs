@@ -335,7 +335,10 @@ pub fn decode_solver<T: serde::de::DeserializeOwned>(
         bincode::serde::decode_from_slice(&file.solver, bincode::config::standard()).map(|(c, _)| c).map_err(|e| {
             CheckpointError::Damaged {
                 path: path.to_path_buf(),
-                why: format!("{what} does not decode ({e}): written by another version of {}?", file.process),
+                why: format!(
+                    "{what} does not decode ({e}): written by another version of {}? A checkpoint resumes only in the version that wrote it: start the run again without --resume",
+                    file.process
+                ),
             }
         })?;
     Ok((file, solver))

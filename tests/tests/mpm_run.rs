@@ -86,6 +86,7 @@ fn dry_mpm_column_collapses_and_stops() {
     assert_eq!(
         names,
         [
+            "liquid_force",
             "locate",
             "map",
             "prepare_forces",
@@ -100,6 +101,7 @@ fn dry_mpm_column_collapses_and_stops() {
     let sum: f64 = stages.values().map(|v| v.as_f64().unwrap()).sum();
     assert!(sum > 0.0 && sum <= s["wall_seconds"].as_f64().unwrap(), "stage seconds {sum}");
     assert_eq!(stages["pressure"].as_f64().unwrap(), 0.0);
+    assert_eq!(stages["liquid_force"].as_f64().unwrap(), 0.0);
 }
 
 #[test]

@@ -123,7 +123,10 @@ fn a_killed_f64_fluid_run_resumes_bit_for_bit() {
 fn a_killed_mpm_run_resumes_bit_for_bit() {
     let name = "resume_mpm";
     let scene = "scenes/ceccato2020/mpm_sat_h030.toml";
-    let set = ["output.end_time=0.1".to_string(), "output.checkpoint_interval=0.01".to_string()];
+    // Checkpoints between frames (every 0.015 s against frames every
+    // 0.01 s): what a frame gathers over its steps (the pore-pressure
+    // peak, the liquid's impulse) must carry over the kill.
+    let set = ["output.end_time=0.1".to_string(), "output.checkpoint_interval=0.015".to_string()];
     let straight = run_straight(&format!("{name}_straight"), scene, &set);
     assert!(!straight.join("checkpoints").exists(), "a completed run keeps no checkpoints");
     let refused = refused_resume(&straight, &[]);

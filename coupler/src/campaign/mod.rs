@@ -330,7 +330,7 @@ pub fn load(args: &Args) -> Result<Campaign, String> {
     let spec: CampaignFile = toml::from_str(&text).map_err(|e| format!("{}: {e}", file.display()))?;
     if args.quick && spec.quick.is_empty() {
         return Err(format!(
-            "{}: --quick needs a [quick] table (e.g. `all = [\"output.end_time=0.2\"]`); without one it would run the full matrix: add the table, or run without --quick",
+            "{}: --quick needs a [quick] table with values (e.g. `all = [\"output.end_time=0.2\"]`); without them it would run the full matrix: add them, or run without --quick",
             file.display()
         ));
     }
