@@ -5,7 +5,7 @@ gravity k g from the gate's release on (`domain.collapse_gravity`), the
 grains prepared without it. For each run: the pile edge (`front_pile`, the
 DEM's rule) at t/t_ref = 1, 2, 4, 8 and at the end, from when
 on it stays within a grain (its bin) of its end, its ratio to the
-set's first run (the unpushed one when --k starts at 0), when it stopped, and the deposit's downstream
+set's first run (the unpushed one when it is listed first), when it stopped, and the deposit's downstream
 surface slope: the least-squares slope of the deposit's height (behind
 the pile edge) where it is
 between 0.2 and 0.8 of its highest, from the highest down to where it
