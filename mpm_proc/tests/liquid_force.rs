@@ -105,12 +105,14 @@ fn the_liquid_force_is_what_the_solid_gains_and_the_liquid_loses() {
             "{transfer} {scheme}: largest impulse per step {largest:.3e} N s/m, worst mismatch {worst:.3e}, total momentum's change {drift:.3e}"
         );
         // The drag's and the pressure waves' impulse on this block is up to
-        // ~2e-5 N s/m per step. The solver's own transfers keep the total
-        // momentum of the free block to ~1e-10 per step (measured 1.0e-10
-        // implicit, 1.5e-10 explicit: 4e-6 and 1.2e-5 of the impulse, all
-        // of the mismatch below); a missing share of the force (the drag,
-        // the pressure, the porosity-gradient term) would be off by its
-        // whole size.
+        // ~2e-5 N s/m per step. The solver keeps the total momentum of the
+        // free block to ~1e-10 per step (measured 1.0e-10 implicit, 1.5e-10
+        // explicit: 4e-6 and 1.2e-5 of the impulse, all of the mismatch
+        // below): the nodes whose mass is below the mass tolerance (1e-6
+        // of the lightest point's) at the block's edges drop their forces
+        // (with the tolerance at 0 it holds to 5e-16). A missing share of
+        // the force (the drag, the pressure, the porosity-gradient term)
+        // would be off by its whole size.
         assert!(largest > 1e-6, "{transfer} {scheme}: no force to check ({largest})");
         assert!(
             worst <= drift + 1e-12 * largest,
