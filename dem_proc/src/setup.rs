@@ -112,7 +112,7 @@ impl DemSetup {
             contact_duration: tc,
             steps_per_contact: tc / dt,
             domain: (scene.spec.domain.min, scene.spec.domain.max),
-            gravity: scene.spec.domain.collapse_gravity.unwrap_or(scene.spec.domain.gravity),
+            gravity: scene.run_gravity(),
             max_diameter,
         }
     }

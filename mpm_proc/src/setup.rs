@@ -60,7 +60,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
     let (dt, c_max) = (step.dt, step.max_speed);
     // The run's gravity; the gravity phase holds the column under `d.gravity`
     // (`run::gravity_phase`).
-    let run_gravity = d.collapse_gravity.unwrap_or(d.gravity);
+    let run_gravity = scene.run_gravity();
     let gravity = [run_gravity[0], run_gravity[2]];
     let g_down = -d.gravity[2];
     let skeleton = MohrCoulomb::new(

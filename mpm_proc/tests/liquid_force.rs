@@ -13,60 +13,26 @@ use common::Quiet;
 use mpm_proc::run::gravity_phase;
 use mpm_proc::setup::build;
 use mpm_proc::solver::Mpm;
-use schemas::Scene;
 
 /// A saturated soil block 40 × 20 mm in the middle of a 0.1 × 0.1 m box
 /// (only the floor a wall, 5 cm below it) on 2.5 mm elements, with the
-/// given transfer and pore-pressure scheme, no damping; gravity is turned
-/// off after the build.
+/// given transfer and pore-pressure scheme, no damping: the shared test
+/// column, moved off every wall; gravity is turned off after the build.
 fn floating_block(transfer: &str, scheme: &str) -> Mpm {
-    let text = format!(
-        r#"
-[scene]
-name = "floating_block"
-method = "mpm"
-
-[domain]
-min = [0.0, 0.0, 0.0]
-max = [0.1, 0.05, 0.1]
-gravity = [0.0, 0.0, -9.81]
-walls = ["z_min"]
-
-[[particles]]
-name = "soil"
-density = 2600.0
-diameter = 2.5e-3
-
-[particles.packing]
-method = "deposit"
-region = {{ min = [0.03, 0.0, 0.05], max = [0.07, 0.05, 0.07] }}
-porosity = 0.4
-seed = 1
-
-[[fluids]]
-name = "water"
-density = 1000.0
-viscosity = 1.0e-3
-region = {{ min = [0.03, 0.0, 0.05], max = [0.07, 0.05, 0.07] }}
-
-[mpm]
-element_size = 0.0025
-damping = 0.0
-initial_stress = "zero"
-transfer = "{transfer}"
-pressure_scheme = "{scheme}"
-
-[output]
-end_time = 0.1
-record_interval = 0.01
-
-[analysis]
-column_length = 0.04
-column_height = 0.02
-condition = "saturated"
-"#
+    let mpm_keys = format!(
+        "element_size = 0.0025\ndamping = 0.0\ninitial_stress = \"zero\"\ntransfer = \"{transfer}\"\npressure_scheme = \"{scheme}\""
     );
-    let scene = Scene::from_toml_str(&text, std::path::Path::new("."), &[]).unwrap_or_else(|e| panic!("{e}"));
+    let (low, high) = ("[0.03, 0.0, 0.05]", "[0.07, 0.05, 0.07]");
+    let off_the_walls = [
+        "domain.max[0]=0.1".to_string(),
+        "domain.walls=[\"z_min\"]".to_string(),
+        format!("particles[0].packing.region.min={low}"),
+        format!("particles[0].packing.region.max={high}"),
+        format!("fluids[0].region.min={low}"),
+        format!("fluids[0].region.max={high}"),
+    ];
+    let sets: Vec<&str> = off_the_walls.iter().map(String::as_str).collect();
+    let scene = common::column(0.04, 0.02, 0.1, Some(0.02), 2.5e-3, &mpm_keys, &sets);
     let mut mpm = build(&scene).unwrap().mpm;
     mpm.params.gravity = [0.0, 0.0];
     mpm

@@ -1187,6 +1187,12 @@ impl Scene {
         self.spec.lbm.as_ref().expect("validated: non-MPM scenes with fluids have [lbm]")
     }
 
+    /// The gravity the run itself feels, m/s²: `domain.collapse_gravity`
+    /// where the scene sets one, else `domain.gravity` (the preparation's).
+    pub fn run_gravity(&self) -> [f64; 3] {
+        self.spec.domain.collapse_gravity.unwrap_or(self.spec.domain.gravity)
+    }
+
     /// |g|, m/s².
     pub fn gravity_magnitude(&self) -> f64 {
         norm(self.spec.domain.gravity)
