@@ -604,6 +604,7 @@ fn record_frame(r: &mut MpmRun<'_>, rec: &mut Recording, rate: f64) -> Result<Me
     }
     let ke = (s.set.kinetic_energy(), l.set.kinetic_energy());
     let grid_ke = mpm.grid_kinetic_energy();
+    let momentum = (s.set.momentum(), l.set.momentum());
     frames.max_kinetic_energy = frames.max_kinetic_energy.max(ke.0 + ke.1);
     frames.max_fluidised = frames.max_fluidised.max(m.fluidised_fraction);
     let max_p = mpm.state.liquid.pressure.iter().cloned().fold(0.0, f64::max);
@@ -651,6 +652,10 @@ fn record_frame(r: &mut MpmRun<'_>, rec: &mut Recording, rate: f64) -> Result<Me
             wall_friction_force: mpm.wall_forces.friction,
             liquid_force_on_solid_x: liquid_force[0],
             liquid_force_on_solid_z: liquid_force[1],
+            momentum_solid_x: momentum.0[0],
+            momentum_solid_z: momentum.0[1],
+            momentum_liquid_x: momentum.1[0],
+            momentum_liquid_z: momentum.1[1],
         };
         rec.log(ch.metrics, t, &metrics)?;
     }

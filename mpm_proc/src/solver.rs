@@ -125,6 +125,12 @@ impl PointSet {
     pub fn kinetic_energy(&self) -> f64 {
         self.v.iter().zip(&self.mass).map(|(v, m)| 0.5 * m * (v[0] * v[0] + v[1] * v[1])).sum()
     }
+    /// Σ m v, kg m/s per metre of width: what the grid receives (APIC's
+    /// affine part maps none, its weights summing to zero for shapes that
+    /// reproduce linear fields).
+    pub fn momentum(&self) -> [f64; 2] {
+        self.v.iter().zip(&self.mass).fold([0.0; 2], |a, (v, m)| [a[0] + m * v[0], a[1] + m * v[1]])
+    }
     /// −Σ m g·(x − origin), J per metre of width.
     pub fn potential_energy(&self, gravity: [f64; 2], origin: [f64; 2]) -> f64 {
         -self

@@ -38,10 +38,6 @@ fn floating_block(transfer: &str, scheme: &str) -> Mpm {
     mpm
 }
 
-fn momentum(set: &mpm_proc::solver::PointSet) -> [f64; 2] {
-    set.v.iter().zip(&set.mass).fold([0.0; 2], |a, (v, m)| [a[0] + m * v[0], a[1] + m * v[1]])
-}
-
 /// The water streams through the block at 5 cm/s along x and 2 cm/s along
 /// z: drag slows it and drives the skeleton; its compression waves add
 /// pressure forces. Each step the solid gains F Δt and the liquid loses it.
@@ -55,11 +51,11 @@ fn the_liquid_force_is_what_the_solid_gains_and_the_liquid_loses() {
         let mut largest: f64 = 0.0;
         let mut drift: f64 = 0.0;
         for _ in 0..200 {
-            let (ps, pl) = (momentum(&mpm.state.solid.set), momentum(&mpm.state.liquid.set));
+            let (ps, pl) = (mpm.state.solid.set.momentum(), mpm.state.liquid.set.momentum());
             mpm.step();
             let step = mpm.take_liquid_impulse();
             assert_eq!(step.time, dt, "one step's impulse");
-            let (ps1, pl1) = (momentum(&mpm.state.solid.set), momentum(&mpm.state.liquid.set));
+            let (ps1, pl1) = (mpm.state.solid.set.momentum(), mpm.state.liquid.set.momentum());
             for d in 0..2 {
                 let impulse = step.impulse[d];
                 largest = largest.max(impulse.abs());

@@ -174,4 +174,13 @@ pub struct MpmMetrics {
     /// table; 0 dry and in the first frame.
     pub liquid_force_on_solid_x: f64,
     pub liquid_force_on_solid_z: f64,
+    /// Σ m v of the solid and of the liquid points at the frame, kg m/s
+    /// per metre of width, along x and z. With the liquid's force it closes
+    /// the solid's momentum budget: what the liquid gave, what gravity
+    /// gave, and the rest from the walls, the floor and the damping
+    /// (`bench/momentum_budget.py`).
+    pub momentum_solid_x: f64,
+    pub momentum_solid_z: f64,
+    pub momentum_liquid_x: f64,
+    pub momentum_liquid_z: f64,
 }
