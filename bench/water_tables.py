@@ -1,0 +1,110 @@
+#!/usr/bin/env python3
+"""The water table and the soil's top along the flume, for DEM-LBM and
+MPM runs of the saturated columns side by side (docs/RESULTS.md, "The
+floor the grains feel, and the solid's momentum in both methods"): at
+t/t_ref = 1, 2, 3, 4, per 4 mm of x, the liquid's top and the soil's top
+(mm), and the water table's mean slope over the soil's body (the bins
+where the soil stands higher than 5 mm). A water table sloping at i
+pushes the skeleton out with rho_L g i per unit volume (Darcy).
+
+DEM-LBM: the liquid's top from `/lbm/slice` (mid-width: per column the
+top of its highest liquid cell, bottom face plus fill x dx), the soil's
+from `/dem/particles` (per bin the 90th percentile of the grains' tops
+z + r, so that a lone grain riding high does not set it). MPM: the
+highest liquid and solid points per bin (`/mpm/liquid`, `/mpm/solid`).
+
+usage: python3 bench/water_tables.py RUN_DIR [RUN_DIR ...]
+"""
+import json, struct, sys, tomllib
+from collections import defaultdict
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
+BIN, BODY = 0.004, 0.005
+TIMES = [0, 1, 2, 3, 4]
+XS = [0.0, 0.02, 0.04, 0.06, 0.08, 0.10, 0.12]
+
+
+def lbm_tops(grid):
+    nx, dx = grid.column_count, grid.cell_size.x
+    nz = len(grid.data) // (nx * grid.cell_stride)
+    top = {}
+    for i in range(nx):
+        for k in range(nz - 1, -1, -1):
+            fill = struct.unpack_from("<f", grid.data, (k * nx + i) * grid.cell_stride)[0]
+            if fill > 0.0:
+                top[i] = k * dx + min(fill, 1.0) * dx
+                break
+    bins = defaultdict(float)
+    for i, z in top.items():
+        b = int((i + 0.5) * dx / BIN)
+        bins[b] = max(bins[b], z)
+    return bins
+
+
+def grain_tops(cloud):
+    per = defaultdict(list)
+    for i in range(len(cloud.data) // cloud.point_stride):
+        x, _, z, r = struct.unpack_from("<4f", cloud.data, i * cloud.point_stride)
+        per[int(x / BIN)].append(z + r)
+    return {b: sorted(v)[int(0.9 * (len(v) - 1))] for b, v in per.items()}
+
+
+def point_tops(cloud):
+    top = defaultdict(float)
+    for i in range(len(cloud.data) // cloud.point_stride):
+        x, _, z = struct.unpack_from("<3f", cloud.data, i * cloud.point_stride)
+        top[int(x / BIN)] = max(top[int(x / BIN)], z)
+    return top
+
+
+def submerged(water, cloud, grains):
+    """The share of the solid (grains, or solid points by mass... by count,
+    the MPM's points carrying equal masses per set) below its bin's water top."""
+    below = total = 0
+    for i in range(len(cloud.data) // cloud.point_stride):
+        x, _, z = struct.unpack_from("<3f", cloud.data, i * cloud.point_stride)
+        total += 1
+        below += z < water.get(int(x / BIN), 0.0)
+    return below / max(total, 1)
+
+
+def slope(water, soil):
+    body = sorted(b for b, z in soil.items() if z > BODY and b in water)
+    if len(body) < 2:
+        return float("nan")
+    xs = [(b + 0.5) * BIN for b in body]
+    zs = [water[b] for b in body]
+    mx, mz = sum(xs) / len(xs), sum(zs) / len(zs)
+    return -sum((x - mx) * (z - mz) for x, z in zip(xs, zs)) / sum((x - mx) ** 2 for x in xs)
+
+
+for run in sys.argv[1:]:
+    sc = tomllib.load(open(f"{run}/scene.toml", "rb"))
+    t_ref = json.load(open(f"{run}/summary.json"))["t_ref"]
+    mpm = json.load(open(f"{run}/summary.json"))["method"] == "mpm"
+    topics = ["/mpm/liquid", "/mpm/solid"] if mpm else ["/lbm/slice", "/dem/particles"]
+    want = {t: None for t in TIMES}
+    frames = defaultdict(dict)
+    with open(f"{run}/run.mcap", "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, msg, m in reader.iter_decoded_messages(topics=topics):
+            tn = msg.log_time * 1e-9 / t_ref
+            t = min(TIMES, key=lambda t: abs(t - tn))
+            if abs(t - tn) < 0.1:
+                frames[(t, round(tn, 3))][channel.topic] = m
+    print(f"{run} ({'MPM' if mpm else 'DEM-LBM'}): water top / soil top (mm) at x (cm)")
+    print("| t/t_ref | " + " | ".join(f"{x * 100:g}" for x in XS) + " | water table's slope over the body | solid below the water table |")
+    print("|---" * (len(XS) + 3) + "|")
+    done = set()
+    for (t, tn), fr in sorted(frames.items(), key=lambda kv: abs(kv[0][0] - kv[0][1])):
+        if t in done or len(fr) < 2:
+            continue
+        done.add(t)
+        solid = fr["/mpm/solid"] if mpm else fr["/dem/particles"]
+        if mpm:
+            water, soil = point_tops(fr["/mpm/liquid"]), point_tops(solid)
+        else:
+            water, soil = lbm_tops(fr["/lbm/slice"]), grain_tops(solid)
+        cells = [f"{water.get(int(x / BIN), 0) * 1e3:.1f} / {soil.get(int(x / BIN), 0) * 1e3:.1f}" for x in XS]
+        print(f"| {tn:.2f} | " + " | ".join(cells) + f" | {slope(water, soil):.3f} | {submerged(water, solid, not mpm):.3f} |")
