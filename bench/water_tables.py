@@ -2,10 +2,11 @@
 """The water table and the soil's top along the flume, for DEM-LBM and
 MPM runs of the saturated columns side by side (docs/RESULTS.md, "The
 floor the grains feel, and the solid's momentum in both methods"): at
-t/t_ref = 1, 2, 3, 4, per 4 mm of x, the liquid's top and the soil's top
-(mm), and the water table's mean slope over the soil's body (the bins
-where the soil stands higher than 5 mm). A water table sloping at i
-pushes the skeleton out with rho_L g i per unit volume (Darcy).
+t/t_ref = 0, 1, 2, 3, 4, per 4 mm of x, the liquid's top and the soil's
+top (mm), the water table's mean slope over the soil's body (the bins
+where the soil stands higher than 5 mm), and the share of the solid
+below its bin's water top. A water table sloping at i pushes the
+skeleton under it out with rho_L g i per unit volume (Darcy).
 
 DEM-LBM: the liquid's top from `/lbm/slice` (mid-width: per column the
 top of its highest liquid cell, bottom face plus fill x dx), the soil's
@@ -58,9 +59,9 @@ def point_tops(cloud):
     return top
 
 
-def submerged(water, cloud, grains):
-    """The share of the solid (grains, or solid points by mass... by count,
-    the MPM's points carrying equal masses per set) below its bin's water top."""
+def submerged(water, cloud):
+    """The share of the grains (or of the MPM's solid points, which carry
+    equal masses) whose centre lies below its bin's water top."""
     below = total = 0
     for i in range(len(cloud.data) // cloud.point_stride):
         x, _, z = struct.unpack_from("<3f", cloud.data, i * cloud.point_stride)
@@ -84,7 +85,6 @@ for run in sys.argv[1:]:
     t_ref = json.load(open(f"{run}/summary.json"))["t_ref"]
     mpm = json.load(open(f"{run}/summary.json"))["method"] == "mpm"
     topics = ["/mpm/liquid", "/mpm/solid"] if mpm else ["/lbm/slice", "/dem/particles"]
-    want = {t: None for t in TIMES}
     frames = defaultdict(dict)
     with open(f"{run}/run.mcap", "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -107,4 +107,4 @@ for run in sys.argv[1:]:
         else:
             water, soil = lbm_tops(fr["/lbm/slice"]), grain_tops(solid)
         cells = [f"{water.get(int(x / BIN), 0) * 1e3:.1f} / {soil.get(int(x / BIN), 0) * 1e3:.1f}" for x in XS]
-        print(f"| {tn:.2f} | " + " | ".join(cells) + f" | {slope(water, soil):.3f} | {submerged(water, solid, not mpm):.3f} |")
+        print(f"| {tn:.2f} | " + " | ".join(cells) + f" | {slope(water, soil):.3f} | {submerged(water, solid):.3f} |")
