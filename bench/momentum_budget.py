@@ -12,8 +12,10 @@ liquid_force_on_solid_x, sessions 33-34) the same budget, the liquid's
 impulse summed over the frames (each frame's force is the mean over its
 steps), a push along x (`domain.collapse_gravity`) as a column of its own,
 and the liquid's force over the grains' buoyant weight as the mean of
-the frames within 0.25 t_ref of the time. The rest is what the walls,
-the floor and the damping gave.
+the frames within 0.25 t_ref of the time (the DEM's is the frame's own).
+The rest is what the walls, the floor and the damping gave, and the
+liquid's force at wall-held nodes, which the recorded force leaves out.
+Runs recorded before session 34 (no momentum) get the force alone.
 
 usage: python3 bench/momentum_budget.py RUN_DIR [RUN_DIR ...]
 """
@@ -30,12 +32,24 @@ def mpm_budget(run, scene, g, rho_s, rho_l, h0):
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         for _, _, _, m in reader.iter_decoded_messages(topics=["/mpm/metrics"]):
             rows.append(m)
-    if not hasattr(rows[0], "momentum_solid_x"):
-        sys.exit(f"{run}: its /mpm/metrics has no momentum_solid_x (recorded since session 34): run it again")
+    if not hasattr(rows[0], "liquid_force_on_solid_x"):
+        sys.exit(f"{run}: its /mpm/metrics has no liquid_force_on_solid_x (recorded since session 33): run it again")
     # The solid points carry the grains' mass; their buoyant weight, N/m.
     mass = rows[0].solid_mass
     g_eff = g * (rho_s - rho_l) / rho_s
     weight = mass * g_eff
+    if not hasattr(rows[0], "momentum_solid_x"):
+        # Recorded before session 34: the force alone.
+        print(f"{run} (MPM, no momentum recorded): the liquid's force on the solid / the grains' buoyant weight")
+        print("| t/t_ref | x | z |")
+        print("|---|---|---|")
+        for t in times:
+            near = [r for r in rows if abs(r.t_norm - t) <= 0.25]
+            if near:
+                fx = sum(r.liquid_force_on_solid_x for r in near) / len(near)
+                fz = sum(r.liquid_force_on_solid_z for r in near) / len(near)
+                print(f"| {t:g} | {fx / weight:+.3f} | {fz / weight:+.3f} |")
+        return
     scale = mass * (g_eff * h0) ** 0.5
     # A push along x (`domain.collapse_gravity`) gives M g_x t.
     g_x = scene["domain"].get("collapse_gravity", scene["domain"]["gravity"])[0]

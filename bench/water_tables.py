@@ -8,11 +8,19 @@ where the soil stands higher than 5 mm), and the share of the solid
 below its bin's water top. A water table sloping at i pushes the
 skeleton under it out with rho_L g i per unit volume (Darcy).
 
-DEM-LBM: the liquid's top from `/lbm/slice` (mid-width: per column the
-top of its highest liquid cell, bottom face plus fill x dx), the soil's
-from `/dem/particles` (per bin the 90th percentile of the grains' tops
-z + r, so that a lone grain riding high does not set it). MPM: the
-highest liquid and solid points per bin (`/mpm/liquid`, `/mpm/solid`).
+The soil's top is its height at the run's initial porosity n0
+(`porosity_initial` of summary.json): the grains' volume in the bin over
+(1 - n0) x the bin's area, as the DEM's pile-edge rule reads heights (a
+percentile of the grains' tops would read a rough surface's valleys or
+its peaks), so both methods start at H0. DEM: grain volumes from
+`/dem/particles`; MPM: the solid points' masses over rho_s per metre of
+width, each point's share spread over its domain (its points' spacing
+along x), so that 4 mm bins over rows of points 0.83 mm apart do not
+alias. The liquid's top: DEM-LBM
+from `/lbm/slice` (mid-width: per column the top of its highest liquid
+cell, bottom face plus fill x dx); MPM the highest liquid point per bin
+plus half the points' vertical spacing (a point's centre lies that far
+below the liquid it stands for).
 
 usage: python3 bench/water_tables.py RUN_DIR [RUN_DIR ...]
 """
@@ -26,7 +34,7 @@ TIMES = [0, 1, 2, 3, 4]
 XS = [0.0, 0.02, 0.04, 0.06, 0.08, 0.10, 0.12]
 
 
-def lbm_tops(grid):
+def lbm_tops(grid, x0, z0):
     nx, dx = grid.column_count, grid.cell_size.x
     nz = len(grid.data) // (nx * grid.cell_stride)
     top = {}
@@ -34,39 +42,50 @@ def lbm_tops(grid):
         for k in range(nz - 1, -1, -1):
             fill = struct.unpack_from("<f", grid.data, (k * nx + i) * grid.cell_stride)[0]
             if fill > 0.0:
-                top[i] = k * dx + min(fill, 1.0) * dx
+                top[i] = grid.pose.position.z - z0 + k * dx + min(fill, 1.0) * dx
                 break
     bins = defaultdict(float)
     for i, z in top.items():
-        b = int((i + 0.5) * dx / BIN)
+        b = int(((i + 0.5) * dx + grid.pose.position.x - x0) / BIN)
         bins[b] = max(bins[b], z)
     return bins
 
 
-def grain_tops(cloud):
-    per = defaultdict(list)
+def grain_heights(cloud, x0, width, n0):
+    vol = defaultdict(float)
     for i in range(len(cloud.data) // cloud.point_stride):
-        x, _, z, r = struct.unpack_from("<4f", cloud.data, i * cloud.point_stride)
-        per[int(x / BIN)].append(z + r)
-    return {b: sorted(v)[int(0.9 * (len(v) - 1))] for b, v in per.items()}
+        x, _, _, r = struct.unpack_from("<4f", cloud.data, i * cloud.point_stride)
+        vol[int((x - x0) / BIN)] += 4.0 / 3.0 * 3.141592653589793 * r**3
+    return {b: v / ((1 - n0) * BIN * width) for b, v in vol.items()}
 
 
-def point_tops(cloud):
+def point_heights(cloud, x0, mass, rho_s, spacing, n0):
+    vol = defaultdict(float)
+    for i in range(len(cloud.data) // cloud.point_stride):
+        x = struct.unpack_from("<f", cloud.data, i * cloud.point_stride)[0] - x0
+        lo, hi = x - spacing / 2, x + spacing / 2
+        for b in range(int(lo // BIN), int(hi // BIN) + 1):
+            share = max(0.0, min(hi, (b + 1) * BIN) - max(lo, b * BIN)) / spacing
+            vol[b] += share * mass / rho_s
+    return {b: v / ((1 - n0) * BIN) for b, v in vol.items()}
+
+
+def point_tops(cloud, x0, z0, lift):
     top = defaultdict(float)
     for i in range(len(cloud.data) // cloud.point_stride):
         x, _, z = struct.unpack_from("<3f", cloud.data, i * cloud.point_stride)
-        top[int(x / BIN)] = max(top[int(x / BIN)], z)
+        top[int((x - x0) / BIN)] = max(top[int((x - x0) / BIN)], z - z0 + lift)
     return top
 
 
-def submerged(water, cloud):
+def submerged(water, cloud, x0, z0):
     """The share of the grains (or of the MPM's solid points, which carry
     equal masses) whose centre lies below its bin's water top."""
     below = total = 0
     for i in range(len(cloud.data) // cloud.point_stride):
         x, _, z = struct.unpack_from("<3f", cloud.data, i * cloud.point_stride)
         total += 1
-        below += z < water.get(int(x / BIN), 0.0)
+        below += z - z0 < water.get(int((x - x0) / BIN), 0.0)
     return below / max(total, 1)
 
 
@@ -82,8 +101,18 @@ def slope(water, soil):
 
 for run in sys.argv[1:]:
     sc = tomllib.load(open(f"{run}/scene.toml", "rb"))
-    t_ref = json.load(open(f"{run}/summary.json"))["t_ref"]
-    mpm = json.load(open(f"{run}/summary.json"))["method"] == "mpm"
+    summary = json.load(open(f"{run}/summary.json"))
+    t_ref, mpm = summary["t_ref"], summary["method"] == "mpm"
+    x0, z0 = sc["domain"]["min"][0], sc["domain"]["min"][2]
+    width = sc["domain"]["max"][1] - sc["domain"]["min"][1]
+    rho_s, n0 = sc["particles"][0]["density"], summary["porosity_initial"]
+    if mpm:
+        m = summary["mpm"]
+        # Points per element a x b, b along z (schemas::scene::point_grid_of).
+        n = sc["mpm"].get("points_per_element", 12)
+        b = max(d for d in range(1, int(n**0.5) + 1) if n % d == 0)
+        lift, spacing = m["element_size"] / (2 * b), m["element_size"] / (n // b)
+        point_mass = m["solid_mass"] / m["solid_points"]
     topics = ["/mpm/liquid", "/mpm/solid"] if mpm else ["/lbm/slice", "/dem/particles"]
     frames = defaultdict(dict)
     with open(f"{run}/run.mcap", "rb") as f:
@@ -103,8 +132,8 @@ for run in sys.argv[1:]:
         done.add(t)
         solid = fr["/mpm/solid"] if mpm else fr["/dem/particles"]
         if mpm:
-            water, soil = point_tops(fr["/mpm/liquid"]), point_tops(solid)
+            water, soil = point_tops(fr["/mpm/liquid"], x0, z0, lift), point_heights(solid, x0, point_mass, rho_s, spacing, n0)
         else:
-            water, soil = lbm_tops(fr["/lbm/slice"]), grain_tops(solid)
+            water, soil = lbm_tops(fr["/lbm/slice"], x0, z0), grain_heights(solid, x0, width, n0)
         cells = [f"{water.get(int(x / BIN), 0) * 1e3:.1f} / {soil.get(int(x / BIN), 0) * 1e3:.1f}" for x in XS]
-        print(f"| {tn:.2f} | " + " | ".join(cells) + f" | {slope(water, soil):.3f} | {submerged(water, solid):.3f} |")
+        print(f"| {tn:.2f} | " + " | ".join(cells) + f" | {slope(water, soil):.3f} | {submerged(water, solid, x0, z0):.3f} |")
