@@ -1,42 +1,19 @@
-"""`/dem/state` records of a `coupler run` recording, decoded (the layout
-and the decoder of docs/recording.md, "/dem/state"): the grains by id,
-which `/dem/particles` cannot give (its points are in the solver's
-storage order, re-sorted every `dem.sort_interval` steps).
+"""`/dem/state` records of a `coupler run` recording, decoded by the
+decoder docs/recording.md carries (its "/dem/state" section, which
+`python_state_decoder_in_the_docs_matches_the_layout` checks against
+the solver's layout): the grains by id, which `/dem/particles` cannot
+give (its points are in the solver's storage order, re-sorted every
+`dem.sort_interval` steps).
 
     from dem_state import states
-    for s in states(run_dir):   # s["time"], s["by_id"][id] = (position, velocity)
+    for s in states(run_dir):   # s["time"], s["by_id"][id] = (position, velocity, radius)
 """
-import struct
+import pathlib
 from mcap.reader import make_reader
 
-
-def decode_state(b):
-    pos = 0
-
-    def varint():
-        nonlocal pos
-        x = b[pos]
-        pos += 1
-        if x < 251:
-            return x
-        n = {251: 2, 252: 4, 253: 8}[x]
-        v = int.from_bytes(b[pos:pos + n], "little")
-        pos += n
-        return v
-
-    def f64s(n):
-        nonlocal pos
-        v = struct.unpack_from(f"<{n}d", b, pos)
-        pos += 8 * n
-        return v
-
-    s = {"version": varint(), "time": f64s(1)[0], "step": varint()}
-    for name, width in [("pos", 3), ("vel", 3), ("omega", 3), ("force", 3), ("torque", 3), ("radius", 1), ("mass", 1)]:
-        n = varint()
-        flat = f64s(n * width)
-        s[name] = list(flat) if width == 1 else [flat[k * width:(k + 1) * width] for k in range(n)]
-    s["ids"] = [varint() for _ in range(varint())]
-    return s
+_doc = (pathlib.Path(__file__).resolve().parent.parent / "docs" / "recording.md").read_text()
+_start = _doc.index("```python\n", _doc.index("A decoder in Python")) + len("```python\n")
+exec(_doc[_start:_doc.index("```", _start)])  # defines decode_state
 
 
 def states(run):
@@ -45,7 +22,7 @@ def states(run):
     out = []
     with open(f"{run}/run.mcap", "rb") as f:
         for _, _, msg in make_reader(f).iter_messages(topics=["/dem/state"]):
-            s = decode_state(msg.data)
+            s = decode_state(msg.data)  # noqa: F821 (from the docs' code above)
             s["by_id"] = {i: (p, v, r) for i, p, v, r in zip(s["ids"], s["pos"], s["vel"], s["radius"])}
             out.append(s)
     out.sort(key=lambda s: s["time"])
