@@ -48,6 +48,11 @@ pub struct Params {
     /// Coulomb friction μ of the solid on the walls listed in
     /// `Fixities::contact` (0: they hold only the normal velocity).
     pub wall_friction: f64,
+    /// Unilateral walls (`mpm.wall_contact = "unilateral"`): the
+    /// components of `Fixities::walls` hold only while the material
+    /// pushes into the wall ([`Mpm::update_wall_contacts`]). false: they
+    /// hold both ways.
+    pub unilateral_walls: bool,
     /// Filling ratio below which a liquid point is on the free surface: its
     /// own (interpolated from the nodes) or its element's
     /// (`ElementScratch::filling_ratio`).
@@ -184,6 +189,10 @@ pub struct MpmState {
     pub liquid: LiquidPoints,
     /// Whether each gate (scene order) still holds.
     pub gates_held: Vec<bool>,
+    /// Under unilateral walls, whether each of `Fixities::walls` is
+    /// released for the next step (the material there moved off the wall);
+    /// empty otherwise.
+    pub walls_released: Vec<bool>,
 }
 
 /// Per-node sums of the first map.
@@ -376,6 +385,21 @@ pub struct Fixities {
     /// (`Params::wall_friction`) acts on the solid there; zero where none.
     /// Its component along the wall normal is fixed in `base`.
     pub contact: Vec<[f64; 2]>,
+    /// The components walls hold along their normal only (corners give
+    /// two; a rough floor's nodes none): those a unilateral contact
+    /// releases (`Params::unilateral_walls`), in node order.
+    pub walls: Vec<WallComponent>,
+}
+
+/// One node component a wall holds along its normal.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WallComponent {
+    /// Stored node index.
+    pub node: usize,
+    /// The component held: 0 (x) or 1 (z).
+    pub axis: usize,
+    /// The direction into the wall along `axis`: ±1.
+    pub into: f64,
 }
 
 /// Wall seconds per stage of [`Mpm::step`], summed over the steps taken
@@ -580,14 +604,27 @@ impl Mpm {
         if mpm.params.implicit_pressure {
             mpm.implicit = Some(Box::new(ImplicitPressure::new(grid, &mpm.params)));
         }
+        let released = if mpm.params.unilateral_walls { mpm.fixities.walls.len() } else { 0 };
+        mpm.state.walls_released.resize(released, false);
         mpm.apply_gate_fixities();
         mpm
     }
 
-    /// Rebuilds the mask from the walls and the gates that still hold.
+    /// Rebuilds the mask from the walls (less the components a unilateral
+    /// contact has released, `MpmState::walls_released`) and the gates
+    /// that still hold.
     pub fn apply_gate_fixities(&mut self) {
         self.mask.copy_from_slice(&self.fixities.base);
         self.full_volume.copy_from_slice(&self.box_volume);
+        self.hold_walls_and_gates();
+    }
+
+    /// The mask's wall components from `MpmState::walls_released`, then the
+    /// gates' holds over them (a gate on a wall holds it both ways).
+    fn hold_walls_and_gates(&mut self) {
+        for (w, &released) in self.fixities.walls.iter().zip(&self.state.walls_released) {
+            self.mask[w.node][w.axis] = if released { 1.0 } else { 0.0 };
+        }
         for (g, nodes) in self.fixities.gates.iter().enumerate() {
             if self.state.gates_held.get(g).copied().unwrap_or(false) {
                 for &n in nodes {
@@ -659,9 +696,15 @@ impl Mpm {
             }
         };
         let mut seconds = self.stage_seconds;
+        if self.params.unilateral_walls {
+            self.hold_walls_and_gates();
+        }
         self.locate();
         lap(&mut seconds.locate);
         self.map_to_grid();
+        if self.params.unilateral_walls {
+            self.release_walls_moved_off();
+        }
         self.porosity_fields();
         lap(&mut seconds.map);
         self.prepare_forces();
@@ -678,6 +721,10 @@ impl Mpm {
                 i.stats.seconds += started.elapsed().as_secs_f64();
             }
             lap(&mut seconds.pressure);
+        }
+        if self.params.unilateral_walls {
+            self.update_wall_contacts();
+            lap(&mut seconds.wall_friction);
         }
         if !self.state.liquid.set.is_empty() {
             // Before the walls' friction changes the contact nodes' solid velocity.
@@ -1220,6 +1267,97 @@ impl Mpm {
             (reaction[0] - pore).max(0.0)
         } else {
             0.0
+        }
+    }
+
+    /// Unilateral walls (`Params::unilateral_walls`), after the map: a
+    /// held wall component whose mapped mixture moves off the wall faster
+    /// than gravity changes its velocity in a step is released for this
+    /// step (its nodal velocities unmasked), so that material thrown off a
+    /// wall leaves with its momentum; the test after the solve
+    /// (`update_wall_contacts`) holds it again if it turns back into the
+    /// wall. (The bar keeps the mapped velocity's round-off at a wall the
+    /// material rests on from releasing it: under APIC it is ~1e-5 m/s.)
+    fn release_walls_moved_off(&mut self) {
+        let tol = self.mass_tolerance;
+        let bar = self.params.dt * self.params.gravity[0].hypot(self.params.gravity[1]);
+        let gated = |node: usize, d: usize, gates: &[Vec<usize>], held: &[bool]| {
+            d == 0 && gates.iter().zip(held).any(|(g, &h)| h && g.contains(&node))
+        };
+        for (w, released) in self.fixities.walls.iter().zip(self.state.walls_released.iter_mut()) {
+            let (node, d) = (w.node, w.axis);
+            if *released || gated(node, d, &self.fixities.gates, &self.state.gates_held) {
+                continue;
+            }
+            let s = &self.sums[node];
+            if (s.momentum_s[d] + s.momentum_l[d]) * w.into >= -bar * (s.mass_s + s.mass_l) {
+                continue;
+            }
+            *released = true;
+            self.mask[node][d] = 1.0;
+            let vs = if s.mass_s > tol { s.momentum_s[d] / s.mass_s } else { 0.0 };
+            let vl = if s.mass_l > tol { s.momentum_l[d] / s.mass_l } else { 0.0 };
+            self.velocity_s[node][d] = vs;
+            self.velocity_l[node][d] = vl;
+            if s.mass_s > tol && s.mass_l > tol {
+                self.relative[node][d] = vl - vs;
+            }
+        }
+    }
+
+    /// Unilateral walls (`Params::unilateral_walls`, Bardenhagen et al.
+    /// 2001's release criterion against a rigid wall), once the step's
+    /// velocities are solved (step 5; after the corrector under the
+    /// implicit pressure). A held wall component whose mixture would move
+    /// off the wall (its mapped momentum plus Δt times the undamped force,
+    /// the pore pressure's included, points away) is released from the
+    /// next step on: the release lags one step because the implicit
+    /// pressure is solved with the step's mask. A released component
+    /// whose mixture moves into the wall is held now (both phases' normal
+    /// velocities stopped) and from the next step on; one whose mixture
+    /// moves off it but one phase into it has that phase's normal
+    /// velocity stopped. The momentum a stop takes over Δt is the wall's
+    /// normal reaction, whose grains' share loads the wall's friction
+    /// (`apply_wall_friction`). A component without mass is held.
+    /// Post: no end velocity of a phase at a wall component points into
+    /// the wall.
+    fn update_wall_contacts(&mut self) {
+        let (dt, tol) = (self.params.dt, self.mass_tolerance);
+        let pressure = self.implicit.as_ref().map(|i| &i.pressure_force);
+        for (w, released) in self.fixities.walls.iter().zip(self.state.walls_released.iter_mut()) {
+            let (node, d, into) = (w.node, w.axis, w.into);
+            let s = &self.sums[node];
+            let masses = [if s.mass_s > tol { s.mass_s } else { 0.0 }, if s.mass_l > tol { s.mass_l } else { 0.0 }];
+            if masses == [0.0; 2] {
+                *released = false;
+                continue;
+            }
+            let u = &mut self.accel[node];
+            if self.mask[node][d] == 0.0 {
+                let mut force = u.force[0][d] + u.force[1][d];
+                if let Some([fps, fpl]) = pressure {
+                    force += fps[node][d] + fpl[node][d];
+                }
+                *released = (s.momentum_s[d] + s.momentum_l[d] + dt * force) * into < 0.0;
+                continue;
+            }
+            let v0 = [self.velocity_s[node][d], self.velocity_l[node][d]];
+            let end = [v0[0] + dt * u.a[0][d], v0[1] + dt * u.a[1][d]];
+            let into_wall = (masses[0] * end[0] + masses[1] * end[1]) * into > 0.0;
+            let mut reaction = [0.0; 2];
+            for phase in 0..2 {
+                if masses[phase] > 0.0 && (into_wall || end[phase] * into > 0.0) {
+                    reaction[phase] = masses[phase] * (end[phase] * into).max(0.0) / dt;
+                    u.a[phase][d] = -v0[phase] / dt;
+                }
+            }
+            if into_wall {
+                self.mask[node][d] = 0.0;
+                *released = false;
+            }
+            if reaction != [0.0; 2] {
+                u.wall_load = Self::grains_wall_load(s, self.solid_fraction[node], reaction, tol);
+            }
         }
     }
 

@@ -149,13 +149,17 @@ fn block_on_a_slope_holds_below_the_friction_angle_and_slides_above() {
 /// H L, and each side wall with K0 γ' (H − z). The two corner nodes are
 /// held both ways and take no friction, so their shares are not counted:
 /// γ' H h/2 each on the floor and K0 γ' (H h/2 − h²/6) each on the walls
-/// (the hat function against the linear stress), h the element size.
+/// (the hat function against the linear stress), h the element size. A
+/// unilateral contact (`mpm.wall_contact`) changes nothing at rest: the
+/// column pushes on every wall node.
 #[test]
 fn walls_carry_the_effective_weight_of_a_column_at_rest() {
     let (width, height, n, k0) = (0.04, 0.06, 0.4, 0.3 / 0.7);
-    for (water, gamma) in [(None, (1.0 - n) * 2600.0 * G), (Some(height), (1.0 - n) * (2600.0 - 1000.0) * G)] {
-        let scene =
-            common::column(width, height, 0.08, water, 2.5e-3, "floor = \"frictional\"\nwall_friction = 0.5", &[]);
+    let cases = [(None, (1.0 - n) * 2600.0 * G), (Some(height), (1.0 - n) * (2600.0 - 1000.0) * G)];
+    for ((water, gamma), contact) in cases.into_iter().flat_map(|c| [(c, "bilateral"), (c, "unilateral")]) {
+        let set = format!("mpm.wall_contact=\"{contact}\"");
+        let walls = "floor = \"frictional\"\nwall_friction = 0.5";
+        let scene = common::column(width, height, 0.08, water, 2.5e-3, walls, &[&set]);
         let mut setup = build(&scene).unwrap();
         let mpm = &mut setup.mpm;
         gravity_phase(&scene, mpm, &AtomicBool::new(false), &mut Quiet);
@@ -167,7 +171,7 @@ fn walls_carry_the_effective_weight_of_a_column_at_rest() {
         }
         let h = mpm.grid.h;
         let expected = gamma * height * (width - h) + k0 * gamma * (height * height - height * h + h * h / 3.0);
-        eprintln!("water {water:?}: wall load {load:.3} N/m against {expected:.3}");
+        eprintln!("water {water:?}, {contact}: wall load {load:.3} N/m against {expected:.3}");
         // 0.5 %: the hydrostatic test holds the stresses to 0.01 % and the
         // walls' load is their nodal resultant; a wrong pore-pressure share
         // would be off by the buoyancy, 38 %.

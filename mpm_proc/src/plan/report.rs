@@ -5,7 +5,8 @@
 
 use schemas::plan::Plan;
 use schemas::scene::{
-    Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmPressureScheme, MpmTransfer, PackingSpec, Scene,
+    Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmPressureScheme, MpmTransfer, MpmWallContact,
+    PackingSpec, Scene,
 };
 
 use super::{self as mpm, SceneMpm};
@@ -313,8 +314,12 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
     p.line(
         "boundaries",
         format!(
-            "{fixed}; {side} on {}; y faces unused; local damping {}; top load {} Pa",
+            "{fixed}; {side} on {}; {}; y faces unused; local damping {}; top load {} Pa",
             if rollers.is_empty() { "none".to_string() } else { rollers.join(" ") },
+            match m.wall_contact {
+                MpmWallContact::Bilateral => "walls hold the normal velocity both ways",
+                MpmWallContact::Unilateral => "walls let go of material moving off them (unilateral)",
+            },
             m.damping,
             m.top_load
         ),
