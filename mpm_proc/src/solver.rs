@@ -1290,6 +1290,11 @@ impl Mpm {
                 continue;
             }
             let s = &self.sums[node];
+            if s.mass_l > tol && self.params.cavitation > 0.0 {
+                // Liquid that holds tension may stick to the wall: the
+                // test after the solve, which sees its pull, decides.
+                continue;
+            }
             if (s.momentum_s[d] + s.momentum_l[d]) * w.into >= -bar * (s.mass_s + s.mass_l) {
                 continue;
             }
@@ -1311,8 +1316,11 @@ impl Mpm {
     /// implicit pressure). A held wall component whose mixture would move
     /// off the wall (its mapped momentum plus Δt times the undamped force,
     /// the pore pressure's included, points away) is released from the
-    /// next step on: the release lags one step because the implicit
-    /// pressure is solved with the step's mask. A released component
+    /// next step on, unless its liquid pulls on the wall with less than
+    /// the tension it holds (`Params::cavitation` over h): water sticks
+    /// to a wall until it cavitates there. The release lags one step
+    /// because the implicit pressure is solved with the step's mask. A
+    /// released component whose liquid pulls so is held again at once. A released component
     /// whose mixture moves into the wall is held now (both phases' normal
     /// velocities stopped) and from the next step on; one whose mixture
     /// moves off it but one phase into it has that phase's normal
@@ -1322,8 +1330,11 @@ impl Mpm {
     /// Post: no end velocity of a phase at a wall component points into
     /// the wall.
     fn update_wall_contacts(&mut self) {
-        let (dt, tol) = (self.params.dt, self.mass_tolerance);
+        let (dt, tol, gravity) = (self.params.dt, self.mass_tolerance, self.params.gravity);
         let pressure = self.implicit.as_ref().map(|i| &i.pressure_force);
+        // What the liquid can pull on a node's share h of the wall before
+        // it cavitates there (a corner's share is h/2: it holds on longer).
+        let tension_cap = self.params.cavitation * self.grid.h;
         for (w, released) in self.fixities.walls.iter().zip(self.state.walls_released.iter_mut()) {
             let (node, d, into) = (w.node, w.axis, w.into);
             let s = &self.sums[node];
@@ -1333,17 +1344,23 @@ impl Mpm {
                 continue;
             }
             let u = &mut self.accel[node];
+            let mut force = u.force[0][d] + u.force[1][d];
+            // The liquid's stress on the mixture there (on the solid, its
+            // share, and on itself), less its weight.
+            let mut liquid = u.liquid_on_solid[d] + u.force[1][d] - masses[1] * gravity[d];
+            if let Some([fps, fpl]) = pressure {
+                force += fps[node][d] + fpl[node][d];
+                liquid += fps[node][d] + fpl[node][d];
+            }
+            let tension = if masses[1] > 0.0 { -liquid * into } else { 0.0 };
+            let adheres = tension > 0.0 && tension < tension_cap;
             if self.mask[node][d] == 0.0 {
-                let mut force = u.force[0][d] + u.force[1][d];
-                if let Some([fps, fpl]) = pressure {
-                    force += fps[node][d] + fpl[node][d];
-                }
-                *released = (s.momentum_s[d] + s.momentum_l[d] + dt * force) * into < 0.0;
+                *released = (s.momentum_s[d] + s.momentum_l[d] + dt * force) * into < 0.0 && !adheres;
                 continue;
             }
             let v0 = [self.velocity_s[node][d], self.velocity_l[node][d]];
             let end = [v0[0] + dt * u.a[0][d], v0[1] + dt * u.a[1][d]];
-            let into_wall = (masses[0] * end[0] + masses[1] * end[1]) * into > 0.0;
+            let into_wall = adheres || (masses[0] * end[0] + masses[1] * end[1]) * into > 0.0;
             let mut reaction = [0.0; 2];
             for phase in 0..2 {
                 if masses[phase] > 0.0 && (into_wall || end[phase] * into > 0.0) {

@@ -411,14 +411,14 @@ pub struct MpmSpec {
     pub wall_friction: f64,
     /// Whether a wall that holds only the normal velocity (x_min, x_max,
     /// z_max, and the floor when `floor = "frictional"`) lets the soil and
-    /// water go when they move off it: `bilateral` (default: the normal
-    /// component is held both ways, so material pulled away stays on the
-    /// wall) or `unilateral` (a held component is released from the next
-    /// step on when the mixture's free velocity there points off the
-    /// wall, and a released one is held again, its phases' velocities
-    /// into the wall stopped, as soon as the mixture moves into it;
-    /// docs/mpm.md, "Walls that let go"). A rough floor and the gates
-    /// hold both ways under either.
+    /// water go when they move off it: `unilateral` (default: a held
+    /// component is released when the mixture there moves off the wall,
+    /// and held again, its phases' velocities into the wall stopped, as
+    /// soon as the mixture moves into it; docs/mpm.md, "Walls that let
+    /// go") or `bilateral` (the normal component held both ways, so
+    /// material pulled away stays on the wall: the behaviour before
+    /// session 35). A rough floor and the gates hold both ways under
+    /// either.
     #[serde(default)]
     pub wall_contact: MpmWallContact,
     /// Ergun coefficients A and B of Eqs. 8–9. Defaults 150 and 1.75.
@@ -705,9 +705,9 @@ pub enum MpmFloor {
 #[serde(rename_all = "snake_case")]
 pub enum MpmWallContact {
     /// Held both ways: material pulled off the wall stays on it.
-    #[default]
     Bilateral,
     /// Held only while the material pushes into the wall.
+    #[default]
     Unilateral,
 }
 

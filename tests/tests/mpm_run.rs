@@ -172,16 +172,19 @@ fn saturated_mpm_column_runs_out_further_than_the_dry_one() {
     // whole column's centre of mass falling to the floor, (m_s + m_l) g H0/2.
     let ke_max = mpm["max_kinetic_energy"].as_f64().unwrap();
     assert!(ke_max > 0.0 && ke_max < (3.744 + 0.96) * 9.81 * 0.03, "peak kinetic energy {ke_max} J/m");
-    // The front runs out, and by 3 t_ref it has all but stopped (< 5 % more to rest).
+    // The front runs out, and by 3.5 t_ref it has all but stopped (< 5 %
+    // more to rest; measured 3.58 against 3.59 at rest, 3.37 at 3 t_ref:
+    // on unilateral walls the front goes on longer than the 2.70 it had
+    // reached by 3 t_ref before session 35).
     let front = s["front"].as_array().unwrap();
     let at = |tn: f64| {
         front.iter().find(|f| f["t_norm"].as_f64().unwrap() >= tn).map(|f| f["x_norm"].as_f64().unwrap()).unwrap()
     };
     let runout = s["runout"].as_f64().unwrap();
-    assert!((runout - at(3.0)).abs() < 0.05 * runout, "front at 3 t_ref {} vs {runout} at rest", at(3.0));
+    assert!((runout - at(3.5)).abs() < 0.05 * runout, "front at 3.5 t_ref {} vs {runout} at rest", at(3.5));
     // Ceccato et al. 2020 §2: for a > 1 the saturated column runs out
     // further than the dry one. The dry MPM column of the same grid and soil
-    // stops at about 2.0 (dry_mpm_column_collapses_and_stops); the saturated one
+    // stops at about 2.2 (dry_mpm_column_collapses_and_stops); the saturated one
     // must go further, and a Mohr–Coulomb soil with φ = 35° cannot run out
     // more than twice as far as dry.
     let dry: serde_json::Value =
