@@ -10,6 +10,7 @@ usage: python3 bench/methods_table.py MPM_DIR DEM_SAT_DIR DEM_DRY_DIR
   MPM_DIR/mpm_{dry,sat}_hNNN/summary.json   (bash bench/mpm_cases.sh MPM_DIR)
   DEM_SAT_DIR/sat_hNNN/seed*/summary.json  (bash bench/seeds.sh DIR sat)
   DEM_DRY_DIR/dry_hNNN/summary.json or .../dry_hNNN/seed*/summary.json
+  or either as DIR/{dry,sat}_hNNN.json (docs/results/ceccato2020/summaries)
 """
 import glob, json, os, sys
 
@@ -48,7 +49,8 @@ for kind in ("dry", "sat"):
         a = int(h) / 1000 / 0.04
         m = load(f"{mpm_dir}/mpm_{kind}_h{h}/summary.json")
         base = sat_dir if kind == "sat" else dry_dir
-        d = load(f"{base}/{kind}_h{h}/seed*/summary.json") or load(f"{base}/{kind}_h{h}/summary.json")
+        d = (load(f"{base}/{kind}_h{h}/seed*/summary.json") or load(f"{base}/{kind}_h{h}/summary.json")
+             or load(f"{base}/{kind}_h{h}.json"))
         if not m or not d:
             print(f"| {kind}_h{h} | {a:.2f} | (missing: {'MPM' if not m else 'DEM'}) |")
             continue
