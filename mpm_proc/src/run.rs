@@ -25,8 +25,8 @@ use schemas::topics;
 use crate::setup::{build, MpmSetup, SetupError};
 use crate::solver::{LiquidImpulse, Mpm, MpmState, PointSet};
 
-/// Version of the `/mpm/state` bincode layout.
-pub const STATE_VERSION: u32 = 2;
+/// Version of the `/mpm/state` bincode layout (3: `MpmState::walls_released`).
+pub const STATE_VERSION: u32 = 3;
 
 /// Full state at a frame (`/mpm/state`): enough to continue the run bit for bit.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]

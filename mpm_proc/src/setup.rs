@@ -116,7 +116,9 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
     let mut gate_nodes = Vec::new();
     for gate in &s.gates {
         let column = ((gate.point[0] - grid.origin[0]) / h).round() as usize + GHOST;
-        gate_nodes.push((GHOST..GHOST + elements[1] + 1).map(|r| r * row + column).collect());
+        // The ghost rows too: behind a floor they hold what it holds, which
+        // leaves x free, and the gate holds x there as above it.
+        gate_nodes.push((GHOST - 1..GHOST + elements[1] + 2).map(|r| r * row + column).collect());
         gates.push((gate.name.clone(), gate.release_time));
     }
     let gates_held = vec![true; s.gates.len()];
@@ -233,9 +235,10 @@ fn seed_points(grid: &Grid, spec: &schemas::scene::MpmSpec, seeds: &Seeds) -> (S
     (solid, liq, soil_top)
 }
 
-/// The nodes' fixities: ghost nodes fixed; a rough z_min wall fixed in
-/// both directions; the other walls (and a frictional floor) hold the
-/// normal velocity, with Coulomb friction on the solid where μ > 0.
+/// The nodes' fixities: a rough z_min wall fixed in both directions; the
+/// other walls (and a frictional floor) hold the normal velocity, with
+/// Coulomb friction on the solid where μ > 0; a ghost node behind a wall
+/// holds what that wall holds, one behind an open face is fixed.
 /// Returns the per-node free directions, the contact normals and the
 /// components a wall holds along its normal only (those a unilateral
 /// contact may release; corners and the ghost nodes behind the walls
@@ -320,11 +323,10 @@ fn fixities(
             if behind_walls {
                 base[r * row + c] = wall;
                 contact[r * row + c] = contact[inside];
-                for a in (0..2).filter(|&a| outside[a]) {
-                    let held = normal_only.iter().find(|w: &&WallComponent| w.node == inside && w.axis == a);
-                    if let Some(&w) = held {
-                        ghosts.push(WallComponent { node: r * row + c, ..w });
-                    }
+                // Every normal-only component of the node in front (a
+                // corner's two), so the ghost lets go when it does.
+                for w in normal_only.iter().filter(|w| w.node == inside) {
+                    ghosts.push(WallComponent { node: r * row + c, ..*w });
                 }
             }
         }

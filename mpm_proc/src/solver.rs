@@ -50,7 +50,7 @@ pub struct Params {
     pub wall_friction: f64,
     /// Unilateral walls (`mpm.wall_contact = "unilateral"`): the
     /// components of `Fixities::walls` hold only while the material
-    /// pushes into the wall ([`Mpm::update_wall_contacts`]). false: they
+    /// pushes into the wall (`Mpm::update_wall_contacts`). false: they
     /// hold both ways.
     pub unilateral_walls: bool,
     /// Filling ratio below which a liquid point is on the free surface: its
@@ -387,7 +387,8 @@ pub struct Fixities {
     pub contact: Vec<[f64; 2]>,
     /// The components walls hold along their normal only (corners give
     /// two; a rough floor's nodes none): those a unilateral contact
-    /// releases (`Params::unilateral_walls`), in node order.
+    /// releases (`Params::unilateral_walls`): the in-box ones in node
+    /// order, then the ghost nodes'.
     pub walls: Vec<WallComponent>,
 }
 
@@ -614,6 +615,10 @@ impl Mpm {
     /// contact has released, `MpmState::walls_released`) and the gates
     /// that still hold.
     pub fn apply_gate_fixities(&mut self) {
+        // A state from elsewhere (a checkpoint) with another wall count
+        // would leave walls out of the zip below.
+        let walls = if self.params.unilateral_walls { self.fixities.walls.len() } else { 0 };
+        self.state.walls_released.resize(walls, false);
         self.mask.copy_from_slice(&self.fixities.base);
         self.full_volume.copy_from_slice(&self.box_volume);
         self.hold_walls_and_gates();
@@ -1284,9 +1289,11 @@ impl Mpm {
         let gated = |node: usize, d: usize, gates: &[Vec<usize>], held: &[bool]| {
             d == 0 && gates.iter().zip(held).any(|(g, &h)| h && g.contains(&node))
         };
+        let ((r0, r1), (c0, c1), row) = (self.rows, self.columns, self.grid.node_dims()[0]);
         for (w, released) in self.fixities.walls.iter().zip(self.state.walls_released.iter_mut()) {
             let (node, d) = (w.node, w.axis);
-            if *released || gated(node, d, &self.fixities.gates, &self.state.gates_held) {
+            let touched = (r0..=r1).contains(&(node / row)) && (c0..=c1).contains(&(node % row));
+            if *released || !touched || gated(node, d, &self.fixities.gates, &self.state.gates_held) {
                 continue;
             }
             let s = &self.sums[node];
@@ -1320,13 +1327,16 @@ impl Mpm {
     /// the tension it holds (`Params::cavitation` over h): water sticks
     /// to a wall until it cavitates there. The release lags one step
     /// because the implicit pressure is solved with the step's mask. A
-    /// released component whose liquid pulls so is held again at once. A released component
-    /// whose mixture moves into the wall is held now (both phases' normal
-    /// velocities stopped) and from the next step on; one whose mixture
-    /// moves off it but one phase into it has that phase's normal
-    /// velocity stopped. The momentum a stop takes over Δt is the wall's
-    /// normal reaction, whose grains' share loads the wall's friction
-    /// (`apply_wall_friction`). A component without mass is held.
+    /// released component whose liquid pulls so, or whose mixture moves
+    /// into the wall, is held now (both phases' normal velocities stopped)
+    /// and from the next step on; one whose mixture moves off it but one
+    /// phase into it has that phase's normal velocity stopped. The force
+    /// a stop replaces (the phase's mass times its solved acceleration
+    /// into the wall; not the mapped velocity's impulse, as in
+    /// `wall_reaction`) is the wall's normal reaction, whose grains' share
+    /// loads the wall's friction (`apply_wall_friction`). A component
+    /// without mass, or outside the range the map touched (whose node
+    /// scratch is stale), is held.
     /// Post: no end velocity of a phase at a wall component points into
     /// the wall.
     fn update_wall_contacts(&mut self) {
@@ -1335,11 +1345,13 @@ impl Mpm {
         // What the liquid can pull on a node's share h of the wall before
         // it cavitates there (a corner's share is h/2: it holds on longer).
         let tension_cap = self.params.cavitation * self.grid.h;
+        let ((r0, r1), (c0, c1), row) = (self.rows, self.columns, self.grid.node_dims()[0]);
         for (w, released) in self.fixities.walls.iter().zip(self.state.walls_released.iter_mut()) {
             let (node, d, into) = (w.node, w.axis, w.into);
             let s = &self.sums[node];
             let masses = [if s.mass_s > tol { s.mass_s } else { 0.0 }, if s.mass_l > tol { s.mass_l } else { 0.0 }];
-            if masses == [0.0; 2] {
+            let touched = (r0..=r1).contains(&(node / row)) && (c0..=c1).contains(&(node % row));
+            if !touched || masses == [0.0; 2] {
                 *released = false;
                 continue;
             }
@@ -1364,7 +1376,9 @@ impl Mpm {
             let mut reaction = [0.0; 2];
             for phase in 0..2 {
                 if masses[phase] > 0.0 && (into_wall || end[phase] * into > 0.0) {
-                    reaction[phase] = masses[phase] * (end[phase] * into).max(0.0) / dt;
+                    // The force that holds it, as `wall_reaction` counts it:
+                    // not the mapped velocity's impulse.
+                    reaction[phase] = masses[phase] * (u.a[phase][d] * into).max(0.0);
                     u.a[phase][d] = -v0[phase] / dt;
                 }
             }

@@ -29,8 +29,8 @@ fn a_frictionless_floor_takes_no_momentum_from_a_sliding_layer() {
     // ways P_x fell to 0.97 of M g sin θ t by 0.12 s (0.94 by 0.15 s): the
     // points of the slumping front within their half-width of the floor
     // had their velocity along it stopped there every step. Measured now:
-    // 1.036–1.053 over 0.15 s; bar ≥ 0.999 (the frame's mass-tolerance
-    // leak is ~1e-10 a step).
+    // 1.041–1.054 over 0.12 s (1.036 at 0.15 s); bar ≥ 0.999 (the
+    // mass-tolerance leak is ~1e-10 a step).
     let scene = common::validation_scene("mpm_sliding_layer", &["mpm.damping=0", "output.end_time=0.12"]);
     let mut mpm = build(&scene).unwrap().mpm;
     gravity_phase(&scene, &mut mpm, &AtomicBool::new(false), &mut Quiet);
