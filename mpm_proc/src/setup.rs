@@ -122,7 +122,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         gates.push((gate.name.clone(), gate.release_time));
     }
     let gates_held = vec![true; s.gates.len()];
-    // Mpm::new sizes walls_released when the walls are unilateral.
+    // Mpm::new (apply_gate_fixities) sizes walls_released.
     let state = MpmState { time: 0.0, steps: 0, gates_held, walls_released: Vec::new(), solid, liquid: liq };
     let mut notes = describe(&spec, &grid, &state, dt, c_max);
     if soil.is_some() && liquid.is_some() {

@@ -605,8 +605,6 @@ impl Mpm {
         if mpm.params.implicit_pressure {
             mpm.implicit = Some(Box::new(ImplicitPressure::new(grid, &mpm.params)));
         }
-        let released = if mpm.params.unilateral_walls { mpm.fixities.walls.len() } else { 0 };
-        mpm.state.walls_released.resize(released, false);
         mpm.apply_gate_fixities();
         mpm
     }
@@ -615,8 +613,8 @@ impl Mpm {
     /// contact has released, `MpmState::walls_released`) and the gates
     /// that still hold.
     pub fn apply_gate_fixities(&mut self) {
-        // A state from elsewhere (a checkpoint) with another wall count
-        // would leave walls out of the zip below.
+        // Sized here for a new state, and for one from elsewhere (a
+        // checkpoint) whose wall count would leave walls out of the zip.
         let walls = if self.params.unilateral_walls { self.fixities.walls.len() } else { 0 };
         self.state.walls_released.resize(walls, false);
         self.mask.copy_from_slice(&self.fixities.base);
@@ -964,6 +962,14 @@ impl Mpm {
 
     /// The stored nodes of the touched range (`rows` × `columns`), row by
     /// row: the serial counterpart of [`Self::for_active_nodes`].
+    /// Whether a node lies in the range the last map touched (outside it
+    /// the node scratch is stale: no material there), as a closure that
+    /// borrows nothing of `self`.
+    fn touched_range(&self) -> impl Fn(usize) -> bool + use<> {
+        let ((r0, r1), (c0, c1), row) = (self.rows, self.columns, self.grid.node_dims()[0]);
+        move |node| (r0..=r1).contains(&(node / row)) && (c0..=c1).contains(&(node % row))
+    }
+
     fn active_nodes(&self) -> impl Iterator<Item = usize> + use<> {
         let row = self.grid.node_dims()[0];
         let ((r0, r1), (c0, c1)) = (self.rows, self.columns);
@@ -1289,11 +1295,10 @@ impl Mpm {
         let gated = |node: usize, d: usize, gates: &[Vec<usize>], held: &[bool]| {
             d == 0 && gates.iter().zip(held).any(|(g, &h)| h && g.contains(&node))
         };
-        let ((r0, r1), (c0, c1), row) = (self.rows, self.columns, self.grid.node_dims()[0]);
+        let touched = self.touched_range();
         for (w, released) in self.fixities.walls.iter().zip(self.state.walls_released.iter_mut()) {
             let (node, d) = (w.node, w.axis);
-            let touched = (r0..=r1).contains(&(node / row)) && (c0..=c1).contains(&(node % row));
-            if *released || !touched || gated(node, d, &self.fixities.gates, &self.state.gates_held) {
+            if *released || !touched(node) {
                 continue;
             }
             let s = &self.sums[node];
@@ -1303,6 +1308,9 @@ impl Mpm {
                 continue;
             }
             if (s.momentum_s[d] + s.momentum_l[d]) * w.into >= -bar * (s.mass_s + s.mass_l) {
+                continue;
+            }
+            if gated(node, d, &self.fixities.gates, &self.state.gates_held) {
                 continue;
             }
             *released = true;
@@ -1345,13 +1353,12 @@ impl Mpm {
         // What the liquid can pull on a node's share h of the wall before
         // it cavitates there (a corner's share is h/2: it holds on longer).
         let tension_cap = self.params.cavitation * self.grid.h;
-        let ((r0, r1), (c0, c1), row) = (self.rows, self.columns, self.grid.node_dims()[0]);
+        let touched = self.touched_range();
         for (w, released) in self.fixities.walls.iter().zip(self.state.walls_released.iter_mut()) {
             let (node, d, into) = (w.node, w.axis, w.into);
             let s = &self.sums[node];
             let masses = [if s.mass_s > tol { s.mass_s } else { 0.0 }, if s.mass_l > tol { s.mass_l } else { 0.0 }];
-            let touched = (r0..=r1).contains(&(node / row)) && (c0..=c1).contains(&(node % row));
-            if !touched || masses == [0.0; 2] {
+            if !touched(node) || masses == [0.0; 2] {
                 *released = false;
                 continue;
             }
