@@ -6,7 +6,7 @@
 use schemas::plan::Plan;
 use schemas::scene::{
     Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmPressureScheme, MpmTransfer, MpmWallContact,
-    PackingSpec, Scene,
+    MpmWallFrictionReach, PackingSpec, Scene,
 };
 
 use super::{self as mpm, SceneMpm};
@@ -314,11 +314,16 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
     p.line(
         "boundaries",
         format!(
-            "{fixed}; {side} on {}; {}; y faces unused; local damping {}; top load {} Pa",
+            "{fixed}; {side} on {}; {}; {}; y faces unused; local damping {}; top load {} Pa",
             if rollers.is_empty() { "none".to_string() } else { rollers.join(" ") },
             match m.wall_contact {
                 MpmWallContact::Bilateral => "walls hold the normal velocity both ways",
                 MpmWallContact::Unilateral => "walls let go of material moving off them (unilateral)",
+            },
+            match m.wall_friction_reach {
+                MpmWallFrictionReach::WallNode => "wall friction on the wall nodes",
+                MpmWallFrictionReach::NextNode =>
+                    "wall friction a wall node cannot take passed to the next node off the wall",
             },
             m.damping,
             m.top_load
