@@ -223,15 +223,15 @@ fn a_push_from_the_run_start_drives_the_block_at_k_minus_mu_g() {
 /// Coulomb's impulse law through an impact, under `mpm.wall_friction_reach
 /// = "next_node"`: the block lifted 6 mm and
 /// pushed along the floor by a tilted gravity (tan θ = 0.3 > μ) lands at
-/// ~0.2 m/s while sliding, bounces and lands again, sliding throughout, so
+/// ~0.28 m/s while sliding, bounces and lands again, sliding throughout, so
 /// the floor's friction impulse must be μ times its normal impulse at every
 /// moment. With only gravity and the floor acting, both come from the
 /// momentum budget: J_n = P_n(t) − P_n(0) + M g_n t, J_f = M g_t t −
 /// (P_t(t) − P_t(0)). With the friction a wall node's own mass cannot take
 /// passed to the node inside (`Mpm::apply_wall_friction`) it gets 0.968
-/// after each landing; on the wall node alone (the default), 0.24 after
-/// the first. Bar 5 %: the receiving node can itself stick, which
-/// Coulomb's inequality allows.
+/// and 0.966 after the first and second landings; on the wall node alone
+/// (the default), 0.24 after the first. Bar 5 %: the receiving node can
+/// itself stick, which Coulomb's inequality allows.
 #[test]
 fn a_block_landing_while_it_slides_gets_mu_times_the_normal_impulse() {
     let slope = 0.3f64.atan();
