@@ -9,7 +9,10 @@ diameter D.
 DEM: the last `/dem/state` (grains by id, radius; bench/dem_state.py).
 MPM: the last `/mpm/solid` frame; every solid point carries the same
 grains (the columns are generated uniform), so each point counts
-L0 H0 (1 - n0) / N per metre of width.
+L0 H0 (1 - n0) / N per metre of width. The profile bins each point by
+its centre (not spread over its domain as `front_pile` is), so one MPM
+point adds v0 / D^2 to a bin (0.15 D at 3.33 mm and 12 points): read the
+MPM's h/D to that. The profile starts at the gate line (x = L0).
 
 usage: python3 bench/deposit_compare.py DEM_RUN MPM_RUN [--diameter D]
   e.g. runs/s34/sat_h030 (the committed DEM-LBM run) and an MPM run of

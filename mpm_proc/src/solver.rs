@@ -489,8 +489,9 @@ pub struct Mpm {
     /// behind it in this step, N s/m (zero between steps).
     friction_carry: Vec<f64>,
     /// The friction impulses passed on to the first nodes off the walls in
-    /// this step: (node, axis along the wall, N s/m, the mass the wall node
-    /// is short of, relative to the node's, kg/m: see `apply_wall_friction`).
+    /// this step: (node, axis along the wall, N s/m, the wall node's solid
+    /// mass over its support ratio, kg/m: what it would hold of a node
+    /// under the same material; see `apply_wall_friction`).
     interior_friction_carry: Vec<(usize, usize, f64, f64)>,
     mass_tolerance: f64,
     pub stage_seconds: StageSeconds,
@@ -537,7 +538,9 @@ impl LiquidImpulse {
 pub struct WallForces {
     /// The grains' normal load on the walls.
     pub normal_load: f64,
-    /// The friction force the walls applied, in magnitude.
+    /// The friction force the walls applied, in magnitude (under
+    /// `Params::friction_reaches_next_node`, what the nodes next to the
+    /// walls took included).
     pub friction: f64,
 }
 
@@ -585,7 +588,8 @@ impl Mpm {
         }
         let min_mass = state.solid.set.mass.iter().chain(&state.liquid.set.mass).cloned().fold(f64::INFINITY, f64::min);
         let ne = grid.element_count();
-        let contact_nodes = Self::contact_nodes(&grid, &fixities.contact, &full_volume);
+        let contact_nodes =
+            Self::contact_nodes(&grid, &fixities.contact, &full_volume, params.friction_reaches_next_node);
         let mut mpm = Mpm {
             params,
             grid,
@@ -640,41 +644,47 @@ impl Mpm {
         mpm
     }
 
-    /// The nodes with wall friction, ordered so that a node comes after
-    /// every contact node behind it on the same wall (ghost rows first).
-    fn contact_nodes(grid: &Grid, contact: &[[f64; 2]], full_volume: &[f64]) -> Vec<ContactNode> {
+    /// The nodes with wall friction, in node order; when the friction a
+    /// wall node cannot take passes on (`reach`), ordered so that a node
+    /// comes after every contact node behind it on the same wall (ghost
+    /// rows first). Post: each node's `inward` is stored (with the ghost
+    /// layer, a wall's nodes always have a node off the wall).
+    fn contact_nodes(grid: &Grid, contact: &[[f64; 2]], full_volume: &[f64], reach: bool) -> Vec<ContactNode> {
         let row = grid.node_dims()[0] as isize;
-        // The node one step off the wall from `node`, if it is stored.
+        // The node one step off the wall from `node`; itself if not stored.
         let inward = |node: usize, into: [f64; 2]| {
             let i = node as isize - into[0] as isize - into[1] as isize * row;
-            (0..contact.len() as isize).contains(&i).then_some(i as usize)
+            if (0..contact.len() as isize).contains(&i) {
+                i as usize
+            } else {
+                node
+            }
         };
         let mut nodes: Vec<(usize, ContactNode)> = contact
             .iter()
             .enumerate()
             .filter(|(_, into)| **into != [0.0; 2])
-            .filter_map(|(node, &into)| {
-                let next = inward(node, into)?;
+            .map(|(node, &into)| {
+                let next = inward(node, into);
                 // Contact nodes of the same wall between this one and the box.
-                let mut behind = 0;
-                let mut at = next;
-                while contact[at] == into {
+                let (mut behind, mut at) = (0, node);
+                while inward(at, into) != at && contact[inward(at, into)] == into {
                     behind += 1;
-                    at = inward(at, into)?;
+                    at = inward(at, into);
                 }
                 let tangent = if into[0] != 0.0 { 1 } else { 0 };
-                let support_ratio = if full_volume[next] > 0.0 { full_volume[node] / full_volume[next] } else { 0.0 };
-                let inward_is_contact = contact[next] == into;
-                Some((behind, ContactNode { node, tangent, inward: next, inward_is_contact, support_ratio }))
+                let support_ratio =
+                    if next != node && full_volume[next] > 0.0 { full_volume[node] / full_volume[next] } else { 0.0 };
+                let inward_is_contact = next != node && contact[next] == into;
+                (behind, ContactNode { node, tangent, inward: next, inward_is_contact, support_ratio })
             })
             .collect();
-        nodes.sort_by_key(|&(behind, c)| (std::cmp::Reverse(behind), c.node));
+        if reach {
+            nodes.sort_by_key(|&(behind, c)| (std::cmp::Reverse(behind), c.node));
+        }
         nodes.into_iter().map(|(_, c)| c).collect()
     }
 
-    /// Rebuilds the mask from the walls (less the components a unilateral
-    /// contact has released, `MpmState::walls_released`) and the gates
-    /// that still hold.
     /// Rebuilds the mask from the walls (less the components a unilateral
     /// contact has released, `MpmState::walls_released`) and the gates
     /// that still hold.
@@ -1487,8 +1497,11 @@ impl Mpm {
     /// momentum, and a block landing while sliding on a μ = 0.1 floor got
     /// 0.24 of the friction impulse Coulomb's law asks for (μ times the
     /// normal impulse; 0.97 with the impulse passed on, the test in
-    /// `tests/wall_friction.rs`). The node inside takes at most what stops
-    /// the mass the wall node holds less than its share, and no node takes
+    /// `tests/wall_friction.rs`). The node inside (mass m_i) takes at most
+    /// what stops the fraction 1 − m_w/(r m_i) of its mass, the fraction by
+    /// which the wall node (m_w) falls short of holding its support's
+    /// share r (½) of a node under the same material: all of it under a
+    /// sliver, none under a layer resting or flowing on the wall. No node takes
     /// more than stops it, so the friction stays within μ N summed over
     /// each wall node's line. Not the default: a μ = 10 floor then holds
     /// the dry lab column 27 % shorter than the rough floor, a gap that
@@ -1537,10 +1550,10 @@ impl Mpm {
             if self.mask[node][t] == 0.0 || s.mass_s <= wall_share + tol {
                 continue;
             }
-            // The node inside takes only what stops the mass the wall node is
-            // short of (it holds its support's share of a node under the same
-            // material): under a layer resting or flowing on the wall none,
-            // and the wall's friction stays on the wall (a rough wall's limit).
+            // The node inside takes only what stops the fraction of its mass
+            // by which the wall node falls short of its support's share of a
+            // node under the same material: under a layer resting or flowing
+            // on the wall none, and the wall's friction stays on the wall.
             let short = 1.0 - wall_share / s.mass_s;
             let trial = self.velocity_s[node][t] + dt * self.accel[node].a[0][t];
             let impulse = impulse.min(short * s.mass_s * trial.abs());

@@ -260,8 +260,9 @@ fn a_block_landing_while_it_slides_gets_mu_times_the_normal_impulse() {
             j_f / mass,
             j_f / (MU * j_n)
         );
-        // It landed (a fall of 6 mm at g cos θ gives ~0.34 m/s into the floor
-        // and back), and kept sliding (the law needs it).
+        // It landed (J_n/M is its speed into the floor plus its rebound: a
+        // free fall of 6 mm at g cos θ would end at 0.34 m/s, and the wall
+        // takes hold from h + l above it), and kept sliding (the law needs it).
         assert!(j_n / mass > 0.3, "no landing by {t} s: J_n/M = {}", j_n / mass);
         assert!(v_t > 0.05, "the block stopped sliding by {t} s (v {v_t})");
         assert!((j_f / (MU * j_n) - 1.0).abs() < 0.05, "J_f/(mu J_n) = {} at {t} s", j_f / (MU * j_n));

@@ -424,8 +424,9 @@ pub struct MpmSpec {
     /// Where a frictional wall's Coulomb impulse μ Δt N acts: `wall_node`
     /// (default: on the wall node alone, which it stops at most) or
     /// `next_node` (what the wall node's own mass cannot take passes to the
-    /// next node off the wall, up to stopping the mass the wall node holds
-    /// less than its share; a block landing while it slides then gets
+    /// next node off the wall, up to stopping the fraction of that node's
+    /// mass by which the wall node falls short of its support's share of a
+    /// node under the same material; a block landing while it slides then gets
     /// 0.97 of the friction impulse Coulomb's law asks for, against 0.24,
     /// but a μ = 10 floor holds a column 27 % shorter than the rough floor;
     /// docs/mpm.md, "Limit: impacts carry too little friction").
