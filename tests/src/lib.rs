@@ -35,9 +35,16 @@ pub fn scratch_dir(name: &str) -> PathBuf {
     d
 }
 
+/// Held while target/pyenv is created or pip installs into it.
+static PYTHON_SETUP: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 /// A Python interpreter with `mcap` and `mcap-protobuf-support`, installed
 /// once into target/pyenv from PyPI. None if python3 or pip is unavailable.
+/// One test at a time sets it up: two tests of one binary creating the
+/// venv at once rebuilt it under each other's pip (a CI run's script
+/// died without a word).
 pub fn python_with_mcap() -> Option<PathBuf> {
+    let _one_at_a_time = PYTHON_SETUP.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     let venv = profile_dir().parent()?.join("pyenv");
     let python = venv.join("bin/python");
     let ready = |py: &Path| {
@@ -78,6 +85,10 @@ pub fn python_with(module: &str, package: &str) -> Option<PathBuf> {
     let python = python_with_mcap()?;
     let ready =
         || Command::new(&python).args(["-c", &format!("import {module}")]).output().is_ok_and(|o| o.status.success());
+    if ready() {
+        return Some(python);
+    }
+    let _one_at_a_time = PYTHON_SETUP.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     if ready() {
         return Some(python);
     }
