@@ -482,8 +482,8 @@ pub struct Mpm {
     /// Node rows and columns touched by any stencil this step (inclusive).
     rows: (usize, usize),
     columns: (usize, usize),
-    /// Nodes with wall friction, those farthest behind their wall first
-    /// (a ghost node before the wall node in front of it).
+    /// Nodes with wall friction (`Mpm::contact_nodes`: in node order, or
+    /// ghost rows first when friction passes on).
     contact_nodes: Vec<ContactNode>,
     /// Per node: the friction impulse passed on to it by the contact node
     /// behind it in this step, N s/m (zero between steps).
@@ -1535,13 +1535,9 @@ impl Mpm {
             if reach && left > 0.0 {
                 if c.inward_is_contact {
                     self.friction_carry[c.inward] += left;
-                } else {
-                    self.interior_friction_carry.push((
-                        c.inward,
-                        c.tangent,
-                        left,
-                        s.mass_s / c.support_ratio.max(1e-12),
-                    ));
+                } else if c.support_ratio > 0.0 {
+                    let wall_share = s.mass_s / c.support_ratio;
+                    self.interior_friction_carry.push((c.inward, c.tangent, left, wall_share));
                 }
             }
         }
