@@ -113,4 +113,5 @@ def main():
         print(f"| {xi:.2f} | {profiles[0].get(i, 0.0) / diameter:.2f} | {profiles[1].get(i, 0.0) / diameter:.2f} |")
 
 
-main()
+if __name__ == "__main__":
+    main()

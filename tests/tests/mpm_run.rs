@@ -532,3 +532,66 @@ fn a_soil_without_dilatancy_flows_on_slopes_steeper_than_its_sin_phi() {
     );
     assert!((onset / phi.sin() - 1.0).abs() < 0.03, "onset tan θ = {onset} against sin φ = {}", phi.sin());
 }
+
+/// The liquid front of an `mpm_dam_break` run, (x, t) per frame, m and s.
+fn liquid_fronts(run: &std::path::Path) -> Vec<(f64, f64)> {
+    let text = std::fs::read_to_string(run.join("summary.json")).expect("summary.json written");
+    let s: serde_json::Value = serde_json::from_str(&text).expect("summary is JSON");
+    let front = s["liquid_front"].as_array().expect("a liquid front");
+    front.iter().map(|f| (f["x"].as_f64().unwrap(), f["t"].as_f64().unwrap())).collect()
+}
+
+#[test]
+fn mpm_dam_break_front_stays_behind_ritter_and_is_the_same_on_a_finer_grid() {
+    // The liquid phase alone (scenes/validation/mpm_dam_break.toml: the lab
+    // column's 0.04 x 0.06 m block of water, no soil, frictionless walls),
+    // released from its gate, on 5 and 4 mm elements to 0.2 s.
+    // Ritter (1892): the ideal dam-break front on a frictionless floor runs
+    // at 2 sqrt(g H0) from the start; a real block first has to fall, so
+    // its front lags that line all along (measured 0.64-0.65 of it at
+    // 0.2 s) and then runs at a large part of that speed: 0.85 of it from
+    // 0.1 to 0.2 s at either grid, where the lattice Boltzmann run of the
+    // same flume in 3D (docs/lbm.md, water_h060) ran at 0.7 and dam-break
+    // experiments at 0.6-0.7; the bar 0.6 says the block collapses rather
+    // than creeps. Refinement: the two grids' fronts differ by 0.03 L0 at
+    // most over the 21 frames (0.6 % of the travel); the bar is issue 20's
+    // 3 % of the travel at 0.2 s.
+    let (l0, h0, g) = (0.04f64, 0.06f64, 9.81f64);
+    let ritter = 2.0 * (g * h0).sqrt();
+    let coarse = liquid_fronts(&coupler_run("mpm_dam_break_5mm", "scenes/validation/mpm_dam_break.toml", &[]));
+    let fine = liquid_fronts(&coupler_run(
+        "mpm_dam_break_4mm",
+        "scenes/validation/mpm_dam_break.toml",
+        &["--set", "mpm.element_size=0.004"],
+    ));
+    assert!(
+        coarse.len() >= 21 && fine.len() >= 21,
+        "frames every 0.01 s to 0.2 s: {} and {}",
+        coarse.len(),
+        fine.len()
+    );
+    let travel = |fronts: &[(f64, f64)], t: f64| {
+        let &(x, _) = fronts.iter().find(|&&(_, ft)| ft >= t - 1e-9).expect("a frame at t");
+        x - l0
+    };
+    for fronts in [&coarse, &fine] {
+        for &(x, t) in fronts.iter().filter(|&&(_, t)| t > 0.0) {
+            assert!(
+                x - l0 < ritter * t,
+                "front {:.4} m past the gate at t = {t:.3} s, Ritter's {:.4}",
+                x - l0,
+                ritter * t
+            );
+        }
+        let speed = (travel(fronts, 0.2) - travel(fronts, 0.1)) / 0.1;
+        assert!(
+            speed > 0.6 * ritter && speed < ritter,
+            "front speed {speed:.3} m/s from 0.1 to 0.2 s, Ritter's {ritter:.3}"
+        );
+    }
+    let bar = 0.03 * travel(&fine, 0.2);
+    for (&(xc, tc), &(xf, tf)) in coarse.iter().zip(&fine).take(21) {
+        assert!((tc - tf).abs() < 1e-3, "frames at {tc} and {tf} s");
+        assert!((xc - xf).abs() < bar, "fronts {xc:.4} (5 mm) and {xf:.4} m (4 mm) at t = {tc:.2} s, bar {bar:.4}");
+    }
+}
