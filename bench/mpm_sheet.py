@@ -32,12 +32,20 @@ def main():
         d = scene["particles"][0]["diameter"]
         h = scene["mpm"]["element_size"]
         n0 = summary["porosity_initial"]
+        pile = summary.get("runout_pile")
+        if pile is None or pile < 0.0:
+            # No pile edge recorded (runs before session 32), or the deposit
+            # is thinner than a grain from the back wall on: no sheet to read.
+            print(f"| {label} | {h * 1e3:.2f} | (no pile edge in summary.json: {pile}) |")
+            continue
         grains, _ = mpm_grains(run, summary)
         total = sum(v for _, v in grains)
-        edge = x0 + l0 + summary["runout_pile"] * l0
+        edge = x0 + l0 + pile * l0
         end = x0 + l0 + summary["runout"] * l0
-        sheet = [(x, v) for x, v in grains if x > edge]
-        beyond = sum(v for _, v in sheet) / total
+        beyond = sum(v for x, v in grains if x > edge) / total
+        # The sheet's thickness over edge < x <= 0.5 % front (the grains
+        # beyond that front would thicken a layer they do not lie in).
+        sheet = [(x, v) for x, v in grains if edge < x <= end]
         bins = {}
         for x, v in sheet:
             i = int((x - edge) // d)
@@ -48,7 +56,7 @@ def main():
         top = max(thickness, default=0.0)
         cells = " | ".join(f"{v:.2f}" for v in shares(grains, x0, l0))
         print(
-            f"| {label} | {h * 1e3:.2f} | {cells} | {summary['runout_pile']:.2f} | {summary['runout']:.2f} "
+            f"| {label} | {h * 1e3:.2f} | {cells} | {pile:.2f} | {summary['runout']:.2f} "
             f"| {beyond:.1%} | {mean / d:.2f} / {top / d:.2f} | {mean / h:.2f} / {top / h:.2f} |"
         )
 
