@@ -85,6 +85,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         wall_friction: spec.wall_friction,
         unilateral_walls: spec.wall_contact == schemas::scene::MpmWallContact::Unilateral,
         friction_reaches_next_node: spec.wall_friction_reach == schemas::scene::MpmWallFrictionReach::NextNode,
+        wall_points_take_grid_tangent: spec.wall_tangent_update == schemas::scene::MpmWallTangentUpdate::Grid,
         free_surface_fill: spec.free_surface_fill,
         pic_fraction: spec.pic_fraction,
         xpic_order: spec.xpic_order,

@@ -57,6 +57,13 @@ pub struct Params {
     /// wall node's own mass cannot take passes to the next node off the
     /// wall (`Mpm::apply_wall_friction`). false: it acts on the wall node only.
     pub friction_reaches_next_node: bool,
+    /// `mpm.wall_tangent_update = "grid"`: points touching a wall node
+    /// take the grid's velocity in both directions every step, which
+    /// re-projects the layer on the wall onto the grid once a step, an
+    /// effect per second that grows as Δt shrinks. false (`"blend"`, the
+    /// default): only along the components held; along the wall they
+    /// update as elsewhere (docs/mpm.md, "A re-projection once a step").
+    pub wall_points_take_grid_tangent: bool,
     /// Filling ratio below which a liquid point is on the free surface: its
     /// own (interpolated from the nodes) or its element's
     /// (`ElementScratch::filling_ratio`).
@@ -264,7 +271,8 @@ struct GridVelocity {
     x: [f64; 2],
     /// Per component: fixed (a wall or the gate).
     fixed: [bool; 2],
-    /// On a frictional wall.
+    /// On a frictional wall whose points take the grid velocity in both
+    /// directions (`Params::wall_points_take_grid_tangent`).
     wall: bool,
 }
 
@@ -1638,6 +1646,7 @@ impl Mpm {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
         let alpha = self.params.pic_fraction;
+        let grid_tangent = self.params.wall_points_take_grid_tangent;
         let (accel, mask, contact) = (&self.accel, &self.mask, &self.fixities.contact);
         let (vs, vl) = (&self.velocity_s, &self.velocity_l);
         let g2p = |set: &mut PointSet, scratch: &PointScratch, phase: usize| {
@@ -1652,7 +1661,7 @@ impl Mpm {
                     a[1] += n * acc[1];
                     pic[0] += n * k[0] * (v0[0] + dt * acc[0]);
                     pic[1] += n * k[1] * (v0[1] + dt * acc[1]);
-                    let touches_wall = n > 0.0 && contact[node] != [0.0; 2];
+                    let touches_wall = grid_tangent && n > 0.0 && contact[node] != [0.0; 2];
                     held[0] |= n > 0.0 && k[0] == 0.0 || touches_wall;
                     held[1] |= n > 0.0 && k[1] == 0.0 || touches_wall;
                 });
@@ -1674,6 +1683,7 @@ impl Mpm {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
         let alpha = self.params.pic_fraction;
+        let grid_tangent = self.params.wall_points_take_grid_tangent;
         let (accel, mask, contact) = (&self.accel, &self.mask, &self.fixities.contact);
         let (vs, vl) = (&self.velocity_s, &self.velocity_l);
         let w = &self.xpic_points;
@@ -1694,7 +1704,7 @@ impl Mpm {
                         let (k, v0) = (mask[node], velocity[node]);
                         pic[0] += n * k[0] * (v0[0] + dt * u.a[phase][0]);
                         pic[1] += n * k[1] * (v0[1] + dt * u.a[phase][1]);
-                        let touches_wall = n > 0.0 && contact[node] != [0.0; 2];
+                        let touches_wall = grid_tangent && n > 0.0 && contact[node] != [0.0; 2];
                         held[0] |= n > 0.0 && k[0] == 0.0 || touches_wall;
                         held[1] |= n > 0.0 && k[1] == 0.0 || touches_wall;
                     });
@@ -1721,6 +1731,7 @@ impl Mpm {
     fn update_velocities_apic(&mut self) {
         let row = self.grid.node_dims()[0];
         let dt = self.params.dt;
+        let grid_tangent = self.params.wall_points_take_grid_tangent;
         let (accel, mask, contact) = (&self.accel, &self.mask, &self.fixities.contact);
         let (vs, vl, grid) = (&self.velocity_s, &self.velocity_l, &self.grid);
         let mut nodes = std::mem::take(&mut self.grid_velocity);
@@ -1732,7 +1743,7 @@ impl Mpm {
                 a,
                 x: grid.node_position(node % row, node / row),
                 fixed: [m[0] == 0.0, m[1] == 0.0],
-                wall: contact[node] != [0.0; 2],
+                wall: grid_tangent && contact[node] != [0.0; 2],
             };
         });
         self.grid_velocity = nodes;

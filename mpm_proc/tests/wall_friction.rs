@@ -113,6 +113,19 @@ fn sliding_block_stops_at_mu_g_flip_unfiltered() {
     sliding_block_stops_at_mu_g(&["mpm.transfer=\"flip\"", "mpm.pic_fraction=0"]);
 }
 
+/// With the points on the wall updated along it as elsewhere
+/// (`mpm.wall_tangent_update = "blend"`): the FLIP increment carries the
+/// wall's friction to them, and the block still stops at μ g.
+#[test]
+fn sliding_block_stops_at_mu_g_blend() {
+    sliding_block_stops_at_mu_g(&["mpm.wall_tangent_update=\"blend\""]);
+}
+
+#[test]
+fn sliding_block_stops_at_mu_g_flip_filtered_blend() {
+    sliding_block_stops_at_mu_g(&["mpm.transfer=\"flip\"", "mpm.wall_tangent_update=\"blend\""]);
+}
+
 #[test]
 fn sliding_block_stops_at_mu_g_linear_shapes() {
     sliding_block_stops_at_mu_g(&["mpm.shape_functions=\"linear\"", "mpm.transfer=\"flip\""]);
@@ -123,9 +136,10 @@ fn sliding_block_stops_at_mu_g_linear_shapes() {
 #[test]
 fn block_on_a_slope_holds_below_the_friction_angle_and_slides_above() {
     let mu = MU;
-    for (tan, expected) in [(0.05, 0.0), (0.2, 1.0)] {
+    let updates = ["mpm.wall_tangent_update=\"grid\"", "mpm.wall_tangent_update=\"blend\""];
+    for ((tan, expected), update) in [(0.05, 0.0), (0.2, 1.0)].into_iter().flat_map(|c| updates.map(|u| (c, u))) {
         let slope: f64 = f64::atan(tan);
-        let mut mpm = block(mu, slope, &[]);
+        let mut mpm = block(mu, slope, &[update]);
         settle(&mut mpm);
         let (x0, _) = centre(&mpm);
         let t_end = 0.1;
@@ -134,7 +148,11 @@ fn block_on_a_slope_holds_below_the_friction_angle_and_slides_above() {
         }
         let (x, v) = centre(&mpm);
         let a = G * (slope.sin() - mu * slope.cos());
-        eprintln!("tan θ = {tan}: moved {:.3e} m, v {v:.4} m/s (g(sin θ − μ cos θ) t = {:.4})", x - x0, a * t_end);
+        eprintln!(
+            "{update}, tan θ = {tan}: moved {:.3e} m, v {v:.4} m/s (g(sin θ − μ cos θ) t = {:.4})",
+            x - x0,
+            a * t_end
+        );
         if expected == 0.0 {
             assert!((x - x0).abs() < 1e-5, "the block crept {} m below the friction angle", x - x0);
         } else {

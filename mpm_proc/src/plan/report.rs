@@ -6,7 +6,7 @@
 use schemas::plan::Plan;
 use schemas::scene::{
     Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmPressureScheme, MpmTransfer, MpmWallContact,
-    MpmWallFrictionReach, PackingSpec, Scene,
+    MpmWallFrictionReach, MpmWallTangentUpdate, PackingSpec, Scene,
 };
 
 use super::{self as mpm, SceneMpm};
@@ -314,7 +314,7 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
     p.line(
         "boundaries",
         format!(
-            "{fixed}; {side} on {}; {}; {}; y faces unused; local damping {}; top load {} Pa",
+            "{fixed}; {side} on {}; {}; {}; {}; y faces unused; local damping {}; top load {} Pa",
             if rollers.is_empty() { "none".to_string() } else { rollers.join(" ") },
             match m.wall_contact {
                 MpmWallContact::Bilateral => "walls hold the normal velocity both ways",
@@ -324,6 +324,10 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
                 MpmWallFrictionReach::WallNode => "wall friction on the wall nodes",
                 MpmWallFrictionReach::NextNode =>
                     "wall friction a wall node cannot take passed to the next node off the wall",
+            },
+            match m.wall_tangent_update {
+                MpmWallTangentUpdate::Grid => "points on a wall take the grid's velocity along it",
+                MpmWallTangentUpdate::Blend => "points on a wall update along it as elsewhere",
             },
             m.damping,
             m.top_load
