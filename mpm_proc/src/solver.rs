@@ -1629,11 +1629,12 @@ impl Mpm {
     /// with `xpic_order` 2, v_p ← v_p + Δt Σ N_I a_I − α Q² v_p instead,
     /// Q = I − S⁺S the part of the point velocities the grid cannot carry
     /// (PIC is v_FLIP − Q v_p). A point whose stencil touches a node held
-    /// in a direction takes the grid's velocity in it (PIC), and in both
-    /// directions next to a frictional wall: under FLIP it kept the part
-    /// of its velocity the wall had stopped, mapped it back each step, and
-    /// the wall stopped it again (a sliding block decelerated at 5 μg from
-    /// these phantom normal impulses; docs/mpm.md, "Frictional walls").
+    /// in a direction takes the grid's velocity in it (PIC): under FLIP it
+    /// kept the part of its velocity the wall had stopped, mapped it back
+    /// each step, and the wall stopped it again (a sliding block
+    /// decelerated at 5 μg from these phantom normal impulses; docs/mpm.md,
+    /// "Frictional walls"). Under `wall_tangent_update = "grid"` it does so
+    /// in both directions next to a frictional wall.
     fn update_velocities(&mut self) {
         if self.params.apic {
             self.update_velocities_apic();

@@ -432,7 +432,8 @@ pub struct MpmSpec {
     /// docs/mpm.md, "Limit: impacts carry too little friction").
     #[serde(default)]
     pub wall_friction_reach: MpmWallFrictionReach,
-    /// How the points touching a wall update their velocity along it:
+    /// How the points touching a frictional wall update their velocity
+    /// along it:
     /// `blend` (default since session 38: the grid's velocity only along
     /// the components a wall holds; along the wall the transfer's own
     /// update, whose FLIP increment carries the wall's friction) or `grid`
@@ -745,8 +746,8 @@ pub enum MpmWallFrictionReach {
     NextNode,
 }
 
-/// How MPM points touching a wall update their velocity along it
-/// (`mpm.wall_tangent_update`).
+/// How MPM points touching a frictional wall update their velocity along
+/// it (`mpm.wall_tangent_update`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MpmWallTangentUpdate {

@@ -326,8 +326,8 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
                     "wall friction a wall node cannot take passed to the next node off the wall",
             },
             match m.wall_tangent_update {
-                MpmWallTangentUpdate::Grid => "points on a wall take the grid's velocity along it",
-                MpmWallTangentUpdate::Blend => "points on a wall update along it as elsewhere",
+                MpmWallTangentUpdate::Grid => "points on a frictional wall take the grid's velocity along it",
+                MpmWallTangentUpdate::Blend => "points on a frictional wall update along it as elsewhere",
             },
             m.damping,
             m.top_load
