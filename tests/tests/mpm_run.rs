@@ -463,9 +463,8 @@ fn dense_frames_do_not_stop_a_column_that_has_not_moved_yet() {
     assert!((s["sim_time"].as_f64().unwrap() - 0.004).abs() < 2e-5, "{}", s["sim_time"]);
 }
 
-/// Mean speed of the solid points with x in (x0, x1) in the last
-/// `/mpm/solid` cloud of a run.
-fn solid_mean_speed_at_end(run: &std::path::Path, x0: f64, x1: f64) -> f64 {
+/// The last `/mpm/solid` cloud a run recorded.
+fn last_solid_cloud(run: &std::path::Path) -> foxglove::schemas::PointCloud {
     let bytes = std::fs::read(run.join("run.mcap")).expect("run.mcap written");
     let mut last = None;
     for msg in mcap::MessageStream::new(&bytes).unwrap() {
@@ -474,7 +473,13 @@ fn solid_mean_speed_at_end(run: &std::path::Path, x0: f64, x1: f64) -> f64 {
             last = Some(foxglove::schemas::PointCloud::decode(&msg.data[..]).unwrap());
         }
     }
-    let cloud = last.expect("a solid cloud");
+    last.expect("a solid cloud")
+}
+
+/// Mean speed of the solid points with x in (x0, x1) in the last
+/// `/mpm/solid` cloud of a run.
+fn solid_mean_speed_at_end(run: &std::path::Path, x0: f64, x1: f64) -> f64 {
+    let cloud = last_solid_cloud(run);
     let field = |p: usize, k: usize| {
         let at = p * cloud.point_stride as usize + 4 * k;
         f32::from_le_bytes(cloud.data[at..at + 4].try_into().unwrap()) as f64
@@ -610,15 +615,7 @@ fn mpm_dam_break_front_stays_behind_ritter_and_is_the_same_on_a_finer_grid() {
 /// solid points of the last `/mpm/solid` cloud (all of one mass in the
 /// lab scenes) sorted by x, as bench/mpm_sheet.py reads them.
 fn grain_share(run: &std::path::Path, share: f64, l0: f64) -> f64 {
-    let bytes = std::fs::read(run.join("run.mcap")).expect("run.mcap written");
-    let mut last = None;
-    for msg in mcap::MessageStream::new(&bytes).unwrap() {
-        let msg = msg.unwrap();
-        if msg.channel.topic == "/mpm/solid" {
-            last = Some(foxglove::schemas::PointCloud::decode(&msg.data[..]).unwrap());
-        }
-    }
-    let cloud = last.expect("a solid cloud");
+    let cloud = last_solid_cloud(run);
     let stride = cloud.point_stride as usize;
     let mut xs: Vec<f64> = (0..cloud.data.len() / stride)
         .map(|p| f32::from_le_bytes(cloud.data[p * stride..p * stride + 4].try_into().unwrap()) as f64)
