@@ -636,10 +636,10 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     // step shrinks (docs/mpm.md, "A re-projection once a step"). Under
     // "blend" they measure 0.72 -> 0.74 (pile edge), 1.09 -> 1.13 (0.5 %
     // front), shares within 0.03 L0; the bars, 0.06 L0 on the pile edge
-    // and the shares and 0.12 L0 on the front, are over twice what is
-    // left (the AFLIP blend's per-step share) and below what the
-    // re-projection moved (pile edge 0.30, front 0.46, the 50 / 75 / 90 %
-    // shares 0.09, 0.21, 0.33).
+    // and the shares and 0.09 L0 on the front (8 % of the pile edge and
+    // of the front), are about twice what is left (the AFLIP blend's
+    // per-step share) and below what the re-projection moved (pile edge
+    // 0.30, front 0.46, the 50 / 75 / 90 % shares 0.09, 0.21, 0.33).
     let l0 = 0.04;
     let run = |courant: &str| {
         coupler_run(
@@ -661,7 +661,7 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     eprintln!("pile edge {pile_a:.3} / {pile_b:.3}, 0.5 % front {:.3} / {:.3}", a.runout, b.runout);
     assert!((pile_a - pile_b).abs() < 0.06, "pile edge {pile_a:.3} L0 at courant 0.5, {pile_b:.3} at 0.125");
     assert!(
-        (a.runout - b.runout).abs() < 0.12,
+        (a.runout - b.runout).abs() < 0.09,
         "0.5 % front {:.3} L0 at courant 0.5, {:.3} at 0.125",
         a.runout,
         b.runout
