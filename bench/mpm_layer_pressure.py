@@ -7,8 +7,9 @@ floor, `--set mpm.floor='"rough"'`, tilted by `--set domain.gravity=[...]`,
 where the layer shears through its depth instead of sliding). Over the
 body (4 cm in from both ends), sum V p / sum V rho_L g_n d, d the depth
 below the highest liquid point of each 2 mm of x plus h/6; with the
-body's mean x-speed of the liquid (vl) and solid (vs) points. With psi = 0
-the soil neither dilates nor contracts as it shears, so 1 is exact.
+body's mean speed (the clouds' `speed` field) of the liquid and solid points. With psi = 0
+the soil neither dilates nor contracts as it shears, so 1 is exact for an
+infinite layer with its water table at its surface (hence the body only).
 
 usage: python3 bench/mpm_layer_pressure.py RUN_DIR [RUN_DIR ...]
 """
@@ -40,4 +41,4 @@ for run in sys.argv[1:]:
     ratios = [r for _, r, _ in out]
     print(f"{run}: the body's pore pressure {min(ratios):.3f}-{max(ratios):.3f} of hydrostatic over {len(out)} frames")
     for t, r, v in out[::3]:
-        print(f"  t {t:.2f} s: {r:.3f} of hydrostatic; mean x-speed liquid {v:.3f}, solid {solid_speed.get(round(t, 3), float('nan')):.3f} m/s")
+        print(f"  t {t:.2f} s: {r:.3f} of hydrostatic; mean speed liquid {v:.3f}, solid {solid_speed.get(round(t, 3), float('nan')):.3f} m/s")
