@@ -6,7 +6,8 @@
 # frictional floor mu = 0.577, phi = 35) followed by any of these tokens,
 # each one change to the scene:
 #   _rough    mpm.floor = "rough" (no slip: the grains shear inside the soil)
-#   _phi27    mpm.friction_angle = 27 (the angle whose dry body meets the DEM's)
+#   _phiNN    mpm.friction_angle = NN degrees (27: the angle whose dry body
+#             meets the DEM's at 4 mm)
 #   _fsf06    mpm.free_surface_fill = 0.6 (and _fsf095: 0.95)
 #   _erg10    Ergun's A and B x 10 (the water held in the grains)
 #   _lflip09  mpm.liquid_flip_share = 0.9 (the water's transfer on FLIP)
@@ -38,7 +39,7 @@ for c in $cases; do
     [ "$token" = "$column" ] && continue
     case "$token" in
       rough) sets+=(--set 'mpm.floor="rough"') ;;
-      phi27) sets+=(--set mpm.friction_angle=27) ;;
+      phi[0-9]*) sets+=(--set mpm.friction_angle="${token#phi}") ;;
       fsf06) sets+=(--set mpm.free_surface_fill=0.6) ;;
       fsf095) sets+=(--set mpm.free_surface_fill=0.95) ;;
       erg10) sets+=(--set mpm.ergun_a=1500 --set mpm.ergun_b=17.5) ;;
