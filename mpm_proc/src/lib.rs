@@ -8,6 +8,7 @@ pub mod grid;
 pub mod mohr_coulomb;
 pub mod plan;
 pub mod pressure;
+pub mod probe;
 pub mod run;
 pub mod setup;
 pub mod solver;

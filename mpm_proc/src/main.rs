@@ -34,6 +34,29 @@ enum Command {
         #[arg(long)]
         threads: Option<usize>,
     },
+    /// Where the liquid pushes the grains: the gravity phase, every gate
+    /// released at t = 0, then the liquid's force on the solid summed node by
+    /// node over a window around each --at; prints per window its x-part
+    /// binned by height and by distance from the back wall, split into the
+    /// stress share, the implicit pore pressure and the drag, per the grains'
+    /// buoyant weight (docs/mpm.md, open point 7).
+    Probe {
+        scene: PathBuf,
+        #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+        set: Vec<String>,
+        /// Window centres, t/t_ref, ascending and at least --window apart.
+        #[arg(long, value_delimiter = ',', default_values_t = [0.5, 1.0])]
+        at: Vec<f64>,
+        /// Window length, t/t_ref.
+        #[arg(long, default_value_t = 0.2)]
+        window: f64,
+        /// Keep the gates closed: the column stays at rest, and the push is
+        /// the buoyancy alone (a check of the measure).
+        #[arg(long)]
+        hold_gates: bool,
+        #[arg(long)]
+        threads: Option<usize>,
+    },
 }
 
 fn not_mpm(scene: &Scene) -> Option<String> {
@@ -78,6 +101,58 @@ fn main() -> ExitCode {
                     mpm.state.time,
                     serde_json::to_string(&mpm.stage_seconds).expect("serialises")
                 );
+                Ok::<(), ExitCode>(())
+            })();
+            result.err().unwrap_or(ExitCode::SUCCESS)
+        }
+        Command::Probe { scene, set, at, window, hold_gates, threads } => {
+            let result = (|| {
+                let scene = runtime::process::load_scene("mpm_proc", &scene, &set, not_mpm)?;
+                set_global_threads("mpm_proc", threads)?;
+                let fail = |e: String| {
+                    tell!("mpm_proc: {e}");
+                    ExitCode::FAILURE
+                };
+                let mut setup = mpm_proc::setup::build(&scene).map_err(|e| fail(e.to_string()))?;
+                let spec = &scene.spec;
+                let (Some(grains), Some(water)) = (spec.particles.first(), spec.fluids.first()) else {
+                    return Err(fail(
+                        "the probe measures the liquid's push on the grains: the scene needs a [[particles]] and a \
+                         [[fluids]] block (a saturated column)"
+                            .into(),
+                    ));
+                };
+                let column = [spec.analysis.column_length, spec.analysis.column_height];
+                let frame = mpm_proc::probe::ProbeFrame {
+                    x0: spec.domain.min[0],
+                    z0: spec.domain.min[2],
+                    column,
+                    t_ref: scene.reference_time(),
+                    buoyant_weight: (1.0 - setup.porosity_initial)
+                        * (grains.density - water.density)
+                        * scene.gravity_magnitude()
+                        * column[0]
+                        * column[1],
+                };
+                let mut reporter = Reporter::new("mpm_proc", false);
+                gravity_phase(&scene, &mut setup.mpm, &AtomicBool::new(false), &mut reporter);
+                let mpm = &mut setup.mpm;
+                for g in (0..setup.gates.len()).filter(|_| !hold_gates) {
+                    mpm.release_gate(g);
+                }
+                let windows = rayon::scope(|_| mpm_proc::probe::probe(mpm, &frame, &at, window)).map_err(fail)?;
+                let label = format!("{} at h = {} mm", spec.scene.name, mpm.grid.h * 1e3);
+                let pushes: Vec<_> = windows.iter().map(|(p, _)| p.clone()).collect();
+                say!("{}", mpm_proc::probe::markdown(&pushes, &frame, &label));
+                for (p, recorded) in &windows {
+                    say!(
+                        "check, t/t_ref {:.2}–{:.2}: the recorder's impulse over the same steps {:+.4} / {:+.4}",
+                        p.window[0],
+                        p.window[1],
+                        recorded[0],
+                        recorded[1]
+                    );
+                }
                 Ok::<(), ExitCode>(())
             })();
             result.err().unwrap_or(ExitCode::SUCCESS)

@@ -513,8 +513,33 @@ pub struct Mpm {
     /// (`take_liquid_impulse`), N s/m along [x, z], and the time it covers, s:
     /// a diagnostic, not state.
     liquid_impulse: LiquidImpulse,
+    /// Where that impulse acts, node by node and by part, while a probe
+    /// has started it ([`Mpm::start_liquid_force_field`]): a diagnostic,
+    /// not state; None (and no cost) otherwise.
+    liquid_force_field: Option<LiquidForceField>,
     /// The implicit pressure's scratch (`Params::implicit_pressure`).
     implicit: Option<Box<ImplicitPressure>>,
+}
+
+/// The liquid's impulse on the solid node by node, split into the parts
+/// [`Mpm::take_liquid_impulse`] sums, over the steps since
+/// [`Mpm::start_liquid_force_field`] (`mpm_proc probe`, docs/mpm.md): each
+/// step adds, at each node with solid and along each axis the node is free
+/// in, its part times Δt, N s/m, [x, z]. The three parts summed over the
+/// nodes are the [`LiquidImpulse`] of the same steps (the same terms in the
+/// same order).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LiquidForceField {
+    /// The liquid's stress share on the solid (the explicit scheme's pore
+    /// pressure, the viscous stress, the porosity-gradient term), per node.
+    pub stress: Vec<[f64; 2]>,
+    /// The implicit scheme's solved pore pressure's share, per node (zero
+    /// under the explicit scheme).
+    pub pressure: Vec<[f64; 2]>,
+    /// The drag Q (v_L − v_S) at the step's end velocities, per node.
+    pub drag: Vec<[f64; 2]>,
+    /// Σ Δt, s.
+    pub time: f64,
 }
 
 /// The liquid's impulse on the solid over an interval of steps
@@ -642,6 +667,7 @@ impl Mpm {
             wall_forces: WallForces::default(),
             pore_pressure_peak: 0.0,
             liquid_impulse: LiquidImpulse::default(),
+            liquid_force_field: None,
             implicit: None,
             state,
         };
@@ -764,6 +790,25 @@ impl Mpm {
         std::mem::take(&mut self.liquid_impulse)
     }
 
+    /// Starts (or restarts) summing the liquid's impulse on the solid node
+    /// by node ([`LiquidForceField`]); each step then costs one pass over
+    /// the touched nodes more.
+    pub fn start_liquid_force_field(&mut self) {
+        let nodes = self.grid.node_count();
+        self.liquid_force_field = Some(LiquidForceField {
+            stress: vec![[0.0; 2]; nodes],
+            pressure: vec![[0.0; 2]; nodes],
+            drag: vec![[0.0; 2]; nodes],
+            time: 0.0,
+        });
+    }
+
+    /// The field summed since [`Mpm::start_liquid_force_field`], and stops
+    /// summing; None when it was not started.
+    pub fn take_liquid_force_field(&mut self) -> Option<LiquidForceField> {
+        self.liquid_force_field.take()
+    }
+
     /// What the implicit pressure solves have cost so far (None under the
     /// explicit scheme).
     pub fn pressure_stats(&self) -> Option<PressureStats> {
@@ -815,7 +860,9 @@ impl Mpm {
         }
         if !self.state.liquid.set.is_empty() {
             // Before the walls' friction changes the contact nodes' solid velocity.
-            let force = self.liquid_force_on_solid();
+            let mut field = self.liquid_force_field.take();
+            let force = self.liquid_force_on_solid(field.as_mut());
+            self.liquid_force_field = field;
             let dt = self.params.dt;
             let i = &mut self.liquid_impulse;
             i.impulse = [i.impulse[0] + force[0] * dt, i.impulse[1] + force[1] * dt];
@@ -854,8 +901,9 @@ impl Mpm {
     /// ρ_L g (1 − n) A, A the submerged area, less the half element row on
     /// the floor's nodes; a water table sloping at i adds the seepage push
     /// ρ_L g i per unit volume along it. `step` adds it, times Δt, to the
-    /// impulse the recorder takes ([`Mpm::take_liquid_impulse`]).
-    fn liquid_force_on_solid(&self) -> [f64; 2] {
+    /// impulse the recorder takes ([`Mpm::take_liquid_impulse`]). With a
+    /// `field`, each node's parts times Δt are added to it as well.
+    fn liquid_force_on_solid(&self, mut field: Option<&mut LiquidForceField>) -> [f64; 2] {
         let (dt, tol) = (self.params.dt, self.mass_tolerance);
         let pressure = self.implicit.as_ref().map(|i| &i.pressure_force[0]);
         let mut total = [0.0; 2];
@@ -870,8 +918,17 @@ impl Mpm {
                 let vs = self.velocity_s[node][d] + dt * u.a[0][d];
                 let vl = self.velocity_l[node][d] + dt * u.a[1][d];
                 let p = pressure.map_or(0.0, |f| f[node][d]);
-                total[d] += u.liquid_on_solid[d] + p + drag * (vl - vs);
+                let friction = drag * (vl - vs);
+                total[d] += u.liquid_on_solid[d] + p + friction;
+                if let Some(f) = field.as_deref_mut() {
+                    f.stress[node][d] += u.liquid_on_solid[d] * dt;
+                    f.pressure[node][d] += p * dt;
+                    f.drag[node][d] += friction * dt;
+                }
             }
+        }
+        if let Some(f) = field {
+            f.time += dt;
         }
         total
     }
