@@ -36,10 +36,10 @@ enum Command {
     },
     /// Where the liquid pushes the grains: the gravity phase, every gate
     /// released at t = 0, then the liquid's force on the solid summed node by
-    /// node over a window around each --at; prints per window its x-part
-    /// binned by height and by distance from the back wall, split into the
-    /// stress share, the implicit pore pressure and the drag, per the grains'
-    /// buoyant weight (docs/mpm.md, open point 7).
+    /// node over a window around each --at; prints per window its x- and
+    /// z-parts binned by height and by distance from the back wall, split
+    /// into the stress share, the implicit pore pressure and the drag, per
+    /// the grains' buoyant weight (docs/mpm.md, open point 7).
     Probe {
         scene: PathBuf,
         #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
@@ -137,20 +137,26 @@ fn main() -> ExitCode {
                 let mut reporter = Reporter::new("mpm_proc", false);
                 gravity_phase(&scene, &mut setup.mpm, &AtomicBool::new(false), &mut reporter);
                 let mpm = &mut setup.mpm;
-                for g in (0..setup.gates.len()).filter(|_| !hold_gates) {
-                    mpm.release_gate(g);
+                if !hold_gates {
+                    for g in 0..setup.gates.len() {
+                        mpm.release_gate(g);
+                    }
                 }
                 let windows = rayon::scope(|_| mpm_proc::probe::probe(mpm, &frame, &at, window)).map_err(fail)?;
-                let label = format!("{} at h = {} mm", spec.scene.name, mpm.grid.h * 1e3);
+                let label = format!("{} at h = {:.3} mm", spec.scene.name, mpm.grid.h * 1e3);
                 let pushes: Vec<_> = windows.iter().map(|(p, _)| p.clone()).collect();
                 say!("{}", mpm_proc::probe::markdown(&pushes, &frame, &label));
                 for (p, recorded) in &windows {
+                    let summed = |d: usize| p.totals.iter().map(|t| t[d]).sum::<f64>();
                     say!(
-                        "check, t/t_ref {:.2}–{:.2}: the recorder's impulse over the same steps {:+.4} / {:+.4}",
+                        "check, t/t_ref {:.2}–{:.2}: the recorder's impulse over the same steps {:+.4} / {:+.4}; \
+                         the bins' totals differ from it by {:.1e} / {:.1e}",
                         p.window[0],
                         p.window[1],
                         recorded[0],
-                        recorded[1]
+                        recorded[1],
+                        summed(0) - recorded[0],
+                        summed(1) - recorded[1]
                     );
                 }
                 Ok::<(), ExitCode>(())

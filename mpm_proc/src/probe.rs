@@ -7,8 +7,10 @@
 //! set side by side.
 //!
 //! The run is the bench's (the gravity phase, every gate released at
-//! t = 0, no recording; `domain.collapse_gravity` is not applied), with
-//! [`Mpm::start_liquid_force_field`] on over each window.
+//! t = 0, the collapse under the scene's `domain.collapse_gravity` when it
+//! sets one, no recording), with [`Mpm::start_liquid_force_field`] on over
+//! each window. Forces are scaled by the grains' buoyant weight under
+//! `domain.gravity` and times by its t_ref, as the run summary's are.
 
 use crate::solver::{LiquidForceField, Mpm};
 
@@ -64,7 +66,9 @@ fn bin(edges: &[f64], v: f64) -> usize {
 /// window's time and the buoyant weight.
 pub fn bin_field(mpm: &Mpm, field: &LiquidForceField, frame: &ProbeFrame, window: [f64; 2]) -> BinnedPush {
     let [nx, _] = mpm.grid.node_dims();
-    let scale = 1.0 / (field.time * frame.buoyant_weight);
+    // An empty window (no step summed) bins to zeros, as
+    // `LiquidImpulse::mean_force` gives over an empty interval.
+    let scale = if field.time > 0.0 { 1.0 / (field.time * frame.buoyant_weight) } else { 0.0 };
     let mut push =
         BinnedPush { window, totals: [[0.0; 2]; 3], bins: [[[[0.0; X_EDGES.len() + 1]; Z_EDGES.len() + 1]; 3]; 2] };
     let half_row = 0.5 * mpm.grid.h;
@@ -87,8 +91,11 @@ pub fn bin_field(mpm: &Mpm, field: &LiquidForceField, frame: &ProbeFrame, window
     push
 }
 
-/// The windows' tables as markdown, one table per part, rows by height,
-/// columns by distance from the back wall.
+/// The windows' tables as markdown, one table per part and axis, rows by
+/// height, columns by distance from the back wall; a part none of whose
+/// bins reaches 1e-4 of the buoyant weight on either axis is left out (the
+/// stress share under the implicit scheme, the implicit pressure under the
+/// explicit one).
 pub fn markdown(pushes: &[BinnedPush], frame: &ProbeFrame, label: &str) -> String {
     use std::fmt::Write;
     let mut out = String::new();
@@ -117,9 +124,9 @@ pub fn markdown(pushes: &[BinnedPush], frame: &ProbeFrame, label: &str) -> Strin
             total(1)
         );
         for (part, name) in PARTS.iter().enumerate() {
-            // A part under 1e-4 of the buoyant weight (the stress share
-            // under the implicit scheme) would print a table of zeros.
-            if p.totals[part].iter().all(|t| t.abs() < 1e-4) {
+            let largest =
+                p.bins.iter().flat_map(|axis| axis[part].iter().flatten()).fold(0.0f64, |m, v| m.max(v.abs()));
+            if largest < 1e-4 {
                 continue;
             }
             for (d, axis) in ["x", "z"].iter().enumerate() {
@@ -147,13 +154,26 @@ pub fn probe(
     centres: &[f64],
     width: f64,
 ) -> Result<Vec<(BinnedPush, [f64; 2])>, String> {
+    if !(frame.t_ref.is_finite() && frame.t_ref > 0.0 && frame.buoyant_weight.is_finite() && frame.buoyant_weight > 0.0)
+    {
+        return Err(format!(
+            "t_ref = {} s and the grains' buoyant weight = {} N/m: the probe scales by both, so give the scene a \
+             non-zero `domain.gravity`, grains denser than the fluid and a column ([analysis] column_length and \
+             column_height > 0)",
+            frame.t_ref, frame.buoyant_weight
+        ));
+    }
+    if let Some(c) = centres.iter().find(|c| !c.is_finite() || **c < 0.0) {
+        return Err(format!("--at {c}: give window centres as finite times t/t_ref ≥ 0"));
+    }
     if mpm.state.liquid.set.is_empty() {
         return Err("the scene has no liquid points: the probe measures the liquid's push on the grains, \
                     so give the scene a [[fluids]] block (a saturated column)"
             .into());
     }
-    if width.is_nan() || width <= 0.0 {
-        return Err(format!("--window {width}: give a window length > 0 (t/t_ref)"));
+    let step = mpm.params.dt / frame.t_ref;
+    if !width.is_finite() || width < step {
+        return Err(format!("--window {width}: give a finite window length of at least one step, {step:.2e} t/t_ref"));
     }
     let windows: Vec<[f64; 2]> = centres.iter().map(|&c| [(c - 0.5 * width).max(0.0), c + 0.5 * width]).collect();
     for pair in windows.windows(2) {

@@ -791,8 +791,8 @@ impl Mpm {
     }
 
     /// Starts (or restarts) summing the liquid's impulse on the solid node
-    /// by node ([`LiquidForceField`]); each step then costs one pass over
-    /// the touched nodes more.
+    /// by node ([`LiquidForceField`]); each step then adds three sums per
+    /// free node and axis to the force's own loop.
     pub fn start_liquid_force_field(&mut self) {
         let nodes = self.grid.node_count();
         self.liquid_force_field = Some(LiquidForceField {
