@@ -1,6 +1,6 @@
 //! `mpm_proc`: runs the two-phase double-point MPM on a scene, alone or under `coupler`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -8,6 +8,7 @@ use std::time::Instant;
 use clap::{Parser, Subcommand};
 
 use mpm_proc::run::{gravity_phase, run};
+use mpm_proc::setup::MpmSetup;
 use runtime::process::{exit_after_run, set_global_threads, start_run, Reporter, RunArgs, RunOptions};
 use runtime::{say, tell};
 use schemas::{Method, Scene};
@@ -66,23 +67,38 @@ fn not_mpm(scene: &Scene) -> Option<String> {
     })
 }
 
+/// The bench's and the probe's start: the scene loaded and checked, the
+/// worker threads set, the grid built and its gravity phase run, every gate
+/// released at t = 0 unless `hold_gates`.
+fn settled(
+    scene: &Path,
+    set: &[String],
+    threads: Option<usize>,
+    hold_gates: bool,
+) -> Result<(Scene, MpmSetup), ExitCode> {
+    let scene = runtime::process::load_scene("mpm_proc", scene, set, not_mpm)?;
+    set_global_threads("mpm_proc", threads)?;
+    let mut setup = mpm_proc::setup::build(&scene).map_err(|e| {
+        tell!("mpm_proc: {e}");
+        ExitCode::FAILURE
+    })?;
+    let mut reporter = Reporter::new("mpm_proc", false);
+    gravity_phase(&scene, &mut setup.mpm, &AtomicBool::new(false), &mut reporter);
+    if !hold_gates {
+        for g in 0..setup.gates.len() {
+            setup.mpm.release_gate(g);
+        }
+    }
+    Ok((scene, setup))
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Bench { scene, set, steps, threads } => {
             let result = (|| {
-                let scene = runtime::process::load_scene("mpm_proc", &scene, &set, not_mpm)?;
-                set_global_threads("mpm_proc", threads)?;
-                let mut setup = mpm_proc::setup::build(&scene).map_err(|e| {
-                    tell!("mpm_proc: {e}");
-                    ExitCode::FAILURE
-                })?;
-                let mut reporter = Reporter::new("mpm_proc", false);
-                gravity_phase(&scene, &mut setup.mpm, &AtomicBool::new(false), &mut reporter);
+                let (_, mut setup) = settled(&scene, &set, threads, false)?;
                 let mpm = &mut setup.mpm;
-                for g in 0..setup.gates.len() {
-                    mpm.release_gate(g);
-                }
                 mpm.timing = true;
                 let points = mpm.state.solid.set.len() + mpm.state.liquid.set.len();
                 let started = Instant::now();
@@ -107,13 +123,11 @@ fn main() -> ExitCode {
         }
         Command::Probe { scene, set, at, window, hold_gates, threads } => {
             let result = (|| {
-                let scene = runtime::process::load_scene("mpm_proc", &scene, &set, not_mpm)?;
-                set_global_threads("mpm_proc", threads)?;
+                let (scene, mut setup) = settled(&scene, &set, threads, hold_gates)?;
                 let fail = |e: String| {
                     tell!("mpm_proc: {e}");
                     ExitCode::FAILURE
                 };
-                let mut setup = mpm_proc::setup::build(&scene).map_err(|e| fail(e.to_string()))?;
                 let spec = &scene.spec;
                 let (Some(grains), Some(water)) = (spec.particles.first(), spec.fluids.first()) else {
                     return Err(fail(
@@ -134,14 +148,7 @@ fn main() -> ExitCode {
                         * column[0]
                         * column[1],
                 };
-                let mut reporter = Reporter::new("mpm_proc", false);
-                gravity_phase(&scene, &mut setup.mpm, &AtomicBool::new(false), &mut reporter);
                 let mpm = &mut setup.mpm;
-                if !hold_gates {
-                    for g in 0..setup.gates.len() {
-                        mpm.release_gate(g);
-                    }
-                }
                 let windows = rayon::scope(|_| mpm_proc::probe::probe(mpm, &frame, &at, window)).map_err(fail)?;
                 let label = format!("{} at h = {:.3} mm", spec.scene.name, mpm.grid.h * 1e3);
                 let pushes: Vec<_> = windows.iter().map(|(p, _)| p.clone()).collect();

@@ -84,6 +84,23 @@ fn the_liquid_force_is_what_the_solid_gains_and_the_liquid_loses() {
     }
 }
 
+/// The tilted closed column of the two tests below: width and height, m,
+/// and gravity's part along x, m/s².
+const WIDTH: f64 = 0.04;
+const HEIGHT: f64 = 0.06;
+const GX: f64 = 1.0;
+
+/// That column after its gravity phase, the liquid impulse taken.
+fn tilted_column_at_rest() -> Mpm {
+    let tilt = format!("domain.gravity=[{GX}, 0.0, -9.81]");
+    let closed = "domain.walls=[\"x_min\", \"x_max\", \"z_min\", \"z_max\"]";
+    let scene = common::column(WIDTH, HEIGHT, HEIGHT, Some(HEIGHT), 2.5e-3, "", &[tilt.as_str(), closed]);
+    let mut mpm = build(&scene).unwrap().mpm;
+    gravity_phase(&scene, &mut mpm, &AtomicBool::new(false), &mut Quiet);
+    mpm.take_liquid_impulse();
+    mpm
+}
+
 /// Gravity with a part g_x along x (`domain.gravity` tilted) on a
 /// saturated column filling a closed box (walls all round, so no free
 /// surface sloshes), at rest after its gravity phase: the pore pressure
@@ -95,14 +112,9 @@ fn the_liquid_force_is_what_the_solid_gains_and_the_liquid_loses() {
 /// the collapse, here at rest.
 #[test]
 fn a_pressure_gradient_along_x_pushes_the_grains_by_its_buoyancy() {
-    let (width, height, gx) = (0.04, 0.06, 1.0);
-    let tilt = format!("domain.gravity=[{gx}, 0.0, -9.81]");
-    let closed = "domain.walls=[\"x_min\", \"x_max\", \"z_min\", \"z_max\"]";
-    let scene = common::column(width, height, height, Some(height), 2.5e-3, "", &[tilt.as_str(), closed]);
-    let mut mpm = build(&scene).unwrap().mpm;
+    let (width, height, gx) = (WIDTH, HEIGHT, GX);
+    let mut mpm = tilted_column_at_rest();
     let h = mpm.grid.h;
-    gravity_phase(&scene, &mut mpm, &AtomicBool::new(false), &mut Quiet);
-    mpm.take_liquid_impulse();
     for _ in 0..(0.05 / mpm.params.dt) as usize {
         mpm.step();
     }
@@ -127,14 +139,9 @@ fn a_pressure_gradient_along_x_pushes_the_grains_by_its_buoyancy() {
 /// pressure's gradient is the same at every height.
 #[test]
 fn the_force_field_puts_the_buoyancy_in_every_row_of_a_column_at_rest() {
-    let (width, height, gx) = (0.04, 0.06, 1.0);
-    let tilt = format!("domain.gravity=[{gx}, 0.0, -9.81]");
-    let closed = "domain.walls=[\"x_min\", \"x_max\", \"z_min\", \"z_max\"]";
-    let scene = common::column(width, height, height, Some(height), 2.5e-3, "", &[tilt.as_str(), closed]);
-    let mut mpm = build(&scene).unwrap().mpm;
+    let (width, height) = (WIDTH, HEIGHT);
+    let mut mpm = tilted_column_at_rest();
     let h = mpm.grid.h;
-    gravity_phase(&scene, &mut mpm, &AtomicBool::new(false), &mut Quiet);
-    mpm.take_liquid_impulse();
     mpm.start_liquid_force_field();
     for _ in 0..200 {
         mpm.step();

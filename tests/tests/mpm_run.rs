@@ -672,3 +672,44 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
         assert!((xa - xb).abs() < 0.06, "{:.0} % share {xa:.3} L0 at courant 0.5, {xb:.3} at 0.125", share * 100.0);
     }
 }
+
+/// `mpm_proc probe` end to end (docs/mpm.md, open point 7): on the
+/// H0 = 0.03 m saturated column held at rest (`--hold-gates`) the liquid's
+/// push on the grains is their buoyancy, all of it the pore pressure's:
+/// per their buoyant weight, ρ_L (1 − h/(2 H0)) / (ρ_s − ρ_L) = 0.5903 up
+/// (the floor's node row holds its half element, h = 3.33 mm) and nothing
+/// along the flume. Measured 0.5903 and 0; bars 0.2 % and 1e-3 (the
+/// gravity phase leaves the points at ~1e-7 m/s). A bad window is refused
+/// with the fix, not run.
+#[test]
+fn the_probe_gives_the_buoyancy_of_a_column_at_rest() {
+    use integration_tests::{binary, repo_root};
+    let probe = |extra: &[&str]| {
+        std::process::Command::new(binary("mpm_proc"))
+            .current_dir(repo_root())
+            .args(["probe", "scenes/ceccato2020/mpm_sat_h030.toml", "--hold-gates", "--threads", "1"])
+            .args(extra)
+            .output()
+            .expect("starts")
+    };
+    let o = probe(&["--at", "0.5"]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{out}\n{}", String::from_utf8_lossy(&o.stderr));
+    let totals = out.lines().find(|l| l.starts_with("totals")).expect("a totals line");
+    // "… drag X / Z ; all parts X / Z": a part's x and z after its name.
+    let part = |name: &str| -> [f64; 2] {
+        let after = totals.rsplit(name).next().unwrap();
+        let v: Vec<f64> =
+            after.split([';', ',']).next().unwrap().split('/').map(|v| v.trim().parse().expect("a number")).collect();
+        [v[0], v[1]]
+    };
+    let (all, drag) = (part("all parts"), part("drag"));
+    let expected = 1000.0 / 1600.0 * (1.0 - (0.03 / 9.0) / (2.0 * 0.03));
+    assert!((all[1] / expected - 1.0).abs() < 2e-3, "up {} against {expected}: {totals}", all[1]);
+    assert!(all[0].abs() < 1e-3, "along the flume {}: {totals}", all[0]);
+    assert!(drag[0].abs() < 1e-4 && drag[1].abs() < 1e-4, "drag at rest {drag:?}: {totals}");
+    let o = probe(&["--at", "0.5,0.55"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("overlap") && err.contains("--window apart"), "{err}");
+}
