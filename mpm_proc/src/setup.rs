@@ -166,8 +166,11 @@ struct Seeds {
     liquid_region: Option<schemas::scene::BoxSpec>,
 }
 
-/// The solid and liquid points, `mpm.points_per_element` per element whose
-/// centre lies in the soil or the liquid block, with the K0 stresses and
+/// The solid and liquid points, on the a × b lattice of
+/// `mpm.points_per_element` per element, each where it lies in the soil or
+/// the liquid block (whose edges the scene validation puts on that
+/// lattice's lines: a block may end inside an element, which then holds
+/// only the points below or beside its edge), with the K0 stresses and
 /// hydrostatic pore pressures of `mpm.initial_stress = "k0"`; and the top
 /// of the soil, m (NaN without soil).
 fn seed_points(grid: &Grid, spec: &schemas::scene::MpmSpec, seeds: &Seeds) -> (SolidPoints, LiquidPoints, f64) {
@@ -187,15 +190,14 @@ fn seed_points(grid: &Grid, spec: &schemas::scene::MpmSpec, seeds: &Seeds) -> (S
     let top_row = soil_top - h / b as f64;
     for k in 0..elements[1] {
         for i in 0..elements[0] {
-            let centre = [grid.origin[0] + (i as f64 + 0.5) * h, grid.origin[1] + (k as f64 + 0.5) * h];
-            let in_soil = soil_region.is_some_and(|r| inside(&r, centre[0], centre[1]));
-            let in_liquid = liquid_region.is_some_and(|r| inside(&r, centre[0], centre[1]));
             for jz in 0..b {
                 for jx in 0..a {
                     let x = [
                         grid.origin[0] + (i as f64 + (jx as f64 + 0.5) / a as f64) * h,
                         grid.origin[1] + (k as f64 + (jz as f64 + 0.5) / b as f64) * h,
                     ];
+                    let in_soil = soil_region.is_some_and(|r| inside(&r, x[0], x[1]));
+                    let in_liquid = liquid_region.is_some_and(|r| inside(&r, x[0], x[1]));
                     // Water above this point (in this column) when the liquid block covers it.
                     let water = liquid_region
                         .filter(|r| x[0] > r.min[0] && x[0] < r.max[0])

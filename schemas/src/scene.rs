@@ -1872,35 +1872,49 @@ fn check_mpm_scene(v: &mut Validator, spec: &SceneSpec, gate_normals: &[[f64; 3]
             ),
         );
     }
-    // Grid lines run from domain.min every h, whether or not the extent fits.
-    let on_grid = |v: &mut Validator, key: String, a: usize, value: f64, what: &str| {
-        if !value.is_finite() {
+    // Grid lines run from domain.min every h, whether or not the extent
+    // fits; the points are seeded on a finer lattice, a × b per element
+    // (`point_grid`), whose lines a block's edges may lie on.
+    let (a_points, b_points) = m.point_grid();
+    let on_lines = |v: &mut Validator, key: String, a: usize, value: f64, what: &str, spacing: f64, lines: &str| {
+        if !value.is_finite() || spacing.is_nan() || spacing <= 0.0 {
             return;
         }
-        let k = (value - d.min[a]) / h;
-        if (k - k.round()).abs() > MPM_GRID_TOLERANCE {
+        let k = (value - d.min[a]) / spacing;
+        if (k - k.round()).abs() > MPM_GRID_TOLERANCE * h / spacing {
             let axis = if a == 0 { "x" } else { "z" };
             v.fail(
                 &key,
                 format!(
-                    "{what} {axis} = {} m is {k:.4} elements of mpm.element_size = {h} m from domain.min[{a}]: the MPM needs it on a grid line; the nearest are {} and {} m",
+                    "{what} {axis} = {} m is {:.4} elements of mpm.element_size = {h} m from domain.min[{a}]: the MPM needs it on {lines}; the nearest are {} and {} m",
                     tidy(value),
-                    tidy(d.min[a] + k.floor() * h),
-                    tidy(d.min[a] + k.ceil() * h),
+                    (value - d.min[a]) / h,
+                    tidy(d.min[a] + k.floor() * spacing),
+                    tidy(d.min[a] + k.ceil() * spacing),
                 ),
             );
         }
     };
+    let on_grid = |v: &mut Validator, key: String, a: usize, value: f64, what: &str| {
+        on_lines(v, key, a, value, what, h, "a grid line");
+    };
+    // The soil's and the liquid's edges: on a line of the points' lattice,
+    // h/a along x and h/b along z (a grid line is one of them).
+    let on_seed_lines = |v: &mut Validator, key: String, a: usize, value: f64, what: &str| {
+        let per = if a == 0 { a_points } else { b_points };
+        let lines = format!("a line of the points' lattice, every h/{per} along {}", if a == 0 { "x" } else { "z" });
+        on_lines(v, key, a, value, what, h / per.max(1) as f64, &lines);
+    };
     if let Some(PackingSpec::Deposit { region, .. }) = spec.particles.first().map(|p| &p.packing) {
         for (a, _) in axes {
-            on_grid(v, format!("particles[0].packing.region.min[{a}]"), a, region.min[a], "the soil edge");
-            on_grid(v, format!("particles[0].packing.region.max[{a}]"), a, region.max[a], "the soil edge");
+            on_seed_lines(v, format!("particles[0].packing.region.min[{a}]"), a, region.min[a], "the soil edge");
+            on_seed_lines(v, format!("particles[0].packing.region.max[{a}]"), a, region.max[a], "the soil edge");
         }
     }
     for (f, fluid) in spec.fluids.iter().enumerate() {
         for (a, _) in axes {
-            on_grid(v, format!("fluids[{f}].region.min[{a}]"), a, fluid.region.min[a], "the liquid edge");
-            on_grid(v, format!("fluids[{f}].region.max[{a}]"), a, fluid.region.max[a], "the liquid edge");
+            on_seed_lines(v, format!("fluids[{f}].region.min[{a}]"), a, fluid.region.min[a], "the liquid edge");
+            on_seed_lines(v, format!("fluids[{f}].region.max[{a}]"), a, fluid.region.max[a], "the liquid edge");
         }
     }
     for (g, gate) in spec.gates.iter().enumerate() {

@@ -284,13 +284,15 @@ const BAD_MPM: &[(&str, &str, &str)] = &[
     ("domain.max=[0.7, 0.05, 0.121]", "domain.max[2]", "z extent 0.121 m"),
     ("mpm.element_size=0.1", "mpm.element_size", "elements along z"),
     ("mpm.element_size=1e-4", "mpm.element_size", "at most 4e6"),
+    // Block edges lie on the points' lattice: 4 × 3 points per 4 mm
+    // element, lines every 1 mm along x and 4/3 mm along z.
     (
         "particles[0].packing.region.max=[0.04, 0.05, 0.061]",
         "particles[0].packing.region.max[2]",
-        "the nearest are 0.06 and 0.064 m",
+        "the nearest are 0.06 and 0.061333333 m",
     ),
-    ("particles[0].packing.region.min=[0.002, 0.0, 0.0]", "particles[0].packing.region.min[0]", "grid line"),
-    ("fluids[0].region.max=[0.042, 0.05, 0.06]", "fluids[0].region.max[0]", "the liquid edge x = 0.042 m"),
+    ("particles[0].packing.region.min=[0.0025, 0.0, 0.0]", "particles[0].packing.region.min[0]", "every h/4 along x"),
+    ("fluids[0].region.max=[0.0425, 0.05, 0.06]", "fluids[0].region.max[0]", "the liquid edge x = 0.0425 m"),
     ("gates[0].point=[0.041, 0.0, 0.0]", "gates[0].point[0]", "the gate x = 0.041 m"),
 ];
 
@@ -318,6 +320,14 @@ fn bad_mpm_values_name_their_key() {
     assert!(e.names_key("gates[0].point[0]") && e.to_string().contains("the nearest are 0.036 and 0.048 m"), "{e}");
     assert!(e.names_key("particles[0].packing.region.max[0]") && e.names_key("fluids[0].region.max[0]"), "{e}");
     assert!(!e.names_key("particles[0].packing.region.max[2]"), "0.06 m is 5 elements: {e}");
+    // A block may end inside an element, on the points' lattice: 58 2/3 mm
+    // is 14 elements and two of the three point rows of the next.
+    let top = 0.06 - 0.004 / 3.0;
+    let inside = [
+        format!("particles[0].packing.region.max=[0.04, 0.05, {top}]"),
+        format!("fluids[0].region.max=[0.04, 0.05, {top}]"),
+    ];
+    assert!(load(&MPM, &[inside[0].as_str(), inside[1].as_str()]).is_ok());
 }
 
 #[test]
