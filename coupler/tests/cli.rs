@@ -217,7 +217,9 @@ fn check_accepts_every_mpm_scene() {
         for e in std::fs::read_dir(format!("{root}/{dir}")).unwrap() {
             let p = e.unwrap().path();
             let name = p.file_name().unwrap().to_string_lossy().into_owned();
-            if (name.starts_with("mpm_") || name.starts_with("drag_")) && name.ends_with(".toml") {
+            // Scenes, not the campaign files beside them (docs/campaign.md).
+            let scene = name.ends_with(".toml") && !name.ends_with("campaign.toml");
+            if (name.starts_with("mpm_") || name.starts_with("drag_")) && scene {
                 scenes.push(format!("scenes/{dir}/{name}"));
             }
         }
@@ -239,12 +241,15 @@ fn method_that_contradicts_the_blocks_exits_2() {
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("scene.method: is \"dem\"") && err.contains("implies \"dem_lbm\""), "{err}");
-    // H0 = 0.03 m is not on the default 4 mm grid: the error says what fits.
+    // H0 = 0.03 m is neither on the default 4 mm grid nor on a row of its
+    // 12 points (4 × 3, rows every 4/3 mm): the error says what fits.
     let out = coupler().args(["run", "--method", "mpm", "scenes/ceccato2020/sat_h030.toml"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        err.contains("particles[0].packing.region.max[2]") && err.contains("the nearest are 0.028 and 0.032 m"),
+        err.contains("particles[0].packing.region.max[2]")
+            && err.contains("the nearest are 0.029333333 and 0.030666667 m")
+            && err.contains("mpm.points_per_element = 12"),
         "{err}"
     );
 }

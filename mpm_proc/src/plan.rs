@@ -100,10 +100,20 @@ impl MpmGrid {
     }
 
     /// Element index range [lo, hi) along x (axis 0) or z (axis 2) covered
-    /// by the interval [min, max] (bounds on grid lines, as validated).
+    /// by the interval [min, max] (bounds on grid lines, as validated along
+    /// x; along z see [`MpmGrid::rows`]).
     pub fn span(&self, axis: usize, min: f64, max: f64) -> (usize, usize) {
         let (o, n) = if axis == 0 { (self.origin[0], self.nx) } else { (self.origin[1], self.nz) };
         let idx = |x: f64| (((x - o) / self.element_size).round().max(0.0) as usize).min(n);
+        (idx(min), idx(max))
+    }
+
+    /// Range [lo, hi) of the points' lattice rows, `per` to an element,
+    /// covered by the z interval [min, max] (bounds on those rows, as
+    /// validated: a block may end inside an element).
+    pub fn rows(&self, min: f64, max: f64, per: usize) -> (usize, usize) {
+        let pitch = self.element_size / per as f64;
+        let idx = |z: f64| (((z - self.origin[1]) / pitch).round().max(0.0) as usize).min(self.nz * per);
         (idx(min), idx(max))
     }
 }

@@ -27,7 +27,7 @@ fn errors(mpm: &mpm_proc::solver::Mpm, h_s: f64, h_w: f64, h: f64) -> (f64, f64,
     let p_base = rho_l * G * h_w;
     let mut ep: f64 = 0.0;
     let (mut top_p, mut top_exact, mut top_count) = (0.0, 0.0, 0.0);
-    // Water tops lie on grid lines (the scene validation's rule).
+    // Water tops lie on grid lines in these tests.
     let top_element = (h_w / h).round() * h - h;
     let z_of = |z: f64| if mpm.params.implicit_pressure { ((z / h).floor() + 0.5) * h } else { z };
     for (x, p) in l.set.x.iter().zip(&l.pressure) {

@@ -1656,7 +1656,7 @@ fn check_method_matches_blocks(v: &mut Validator, spec: &SceneSpec, named: Metho
 pub const MPM_MAX_ELEMENTS: f64 = 4.0e6;
 
 /// Tolerance, as a fraction of `mpm.element_size`, of a coordinate that must
-/// lie on a grid line.
+/// lie on a grid line (or on a row of the points' lattice).
 const MPM_GRID_TOLERANCE: f64 = 1e-6;
 
 /// A length rounded to 1e-9 m for messages (0.04 rather than 0.04000000000000001).
@@ -1875,9 +1875,9 @@ fn check_mpm_scene(v: &mut Validator, spec: &SceneSpec, gate_normals: &[[f64; 3]
     // Grid lines run from domain.min every h, whether or not the extent
     // fits; the points are seeded on a finer lattice, a × b per element
     // (`point_grid`), whose lines a block's edges may lie on.
-    let (a_points, b_points) = m.point_grid();
+    let (_, b_points) = m.point_grid();
     let on_lines = |v: &mut Validator, key: String, a: usize, value: f64, what: &str, spacing: f64, lines: &str| {
-        if !value.is_finite() || spacing.is_nan() || spacing <= 0.0 {
+        if !value.is_finite() {
             return;
         }
         let k = (value - d.min[a]) / spacing;
@@ -1898,12 +1898,24 @@ fn check_mpm_scene(v: &mut Validator, spec: &SceneSpec, gate_normals: &[[f64; 3]
     let on_grid = |v: &mut Validator, key: String, a: usize, value: f64, what: &str| {
         on_lines(v, key, a, value, what, h, "a grid line");
     };
-    // The soil's and the liquid's edges: on a line of the points' lattice,
-    // h/a along x and h/b along z (a grid line is one of them).
+    // The soil's and the liquid's edges: along x on grid lines (a side
+    // face inside an element would leave every element of that column
+    // part-filled, its water free); along z on a row of the points'
+    // lattice, every h/b (a grid line is one of them), so a block's top or
+    // bottom may lie inside an element. An invalid point count (reported
+    // with the [mpm] values) falls back to grid lines.
+    let rows = if point_count_fits(m.points_per_element) { b_points.max(1) } else { 1 };
     let on_seed_lines = |v: &mut Validator, key: String, a: usize, value: f64, what: &str| {
-        let per = if a == 0 { a_points } else { b_points };
-        let lines = format!("a line of the points' lattice, every h/{per} along {}", if a == 0 { "x" } else { "z" });
-        on_lines(v, key, a, value, what, h / per.max(1) as f64, &lines);
+        if a == 0 {
+            on_grid(v, key, a, value, what);
+        } else {
+            let lines = format!(
+                "a grid line or, along z, a row of the points' lattice (mpm.points_per_element = {} puts {rows} rows in each element, every {} m)",
+                m.points_per_element,
+                tidy(h / rows as f64)
+            );
+            on_lines(v, key, a, value, what, h / rows as f64, &lines);
+        }
     };
     if let Some(PackingSpec::Deposit { region, .. }) = spec.particles.first().map(|p| &p.packing) {
         for (a, _) in axes {

@@ -284,15 +284,15 @@ const BAD_MPM: &[(&str, &str, &str)] = &[
     ("domain.max=[0.7, 0.05, 0.121]", "domain.max[2]", "z extent 0.121 m"),
     ("mpm.element_size=0.1", "mpm.element_size", "elements along z"),
     ("mpm.element_size=1e-4", "mpm.element_size", "at most 4e6"),
-    // Block edges lie on the points' lattice: 4 × 3 points per 4 mm
-    // element, lines every 1 mm along x and 4/3 mm along z.
+    // Block edges lie on grid lines along x, and along z on a row of the
+    // points' lattice: 4 × 3 points per 4 mm element, rows every 4/3 mm.
     (
         "particles[0].packing.region.max=[0.04, 0.05, 0.061]",
         "particles[0].packing.region.max[2]",
         "the nearest are 0.06 and 0.061333333 m",
     ),
-    ("particles[0].packing.region.min=[0.0025, 0.0, 0.0]", "particles[0].packing.region.min[0]", "every h/4 along x"),
-    ("fluids[0].region.max=[0.0425, 0.05, 0.06]", "fluids[0].region.max[0]", "the liquid edge x = 0.0425 m"),
+    ("particles[0].packing.region.min=[0.002, 0.0, 0.0]", "particles[0].packing.region.min[0]", "grid line"),
+    ("fluids[0].region.max=[0.042, 0.05, 0.06]", "fluids[0].region.max[0]", "the liquid edge x = 0.042 m"),
     ("gates[0].point=[0.041, 0.0, 0.0]", "gates[0].point[0]", "the gate x = 0.041 m"),
 ];
 

@@ -52,26 +52,36 @@ pub fn plan(scene: &Scene) -> Plan {
 fn plan_points(scene: &Scene, ppe: usize, p: &mut Plan) -> usize {
     let s = &scene.spec;
     let grid = scene.mpm_grid();
-    // Filled elements: the soil's and the liquid's regions in whole elements.
+    // Along x in whole elements; along z in the points' lattice rows, b to
+    // an element (a block may end inside one), a points to a row per element.
+    let (a, b) = schemas::scene::point_grid_of(ppe as u32);
+    let (a, b) = (a.max(1) as usize, b.max(1) as usize);
     let area = |r: &schemas::scene::BoxSpec| -> ((usize, usize), (usize, usize)) {
-        (grid.span(0, r.min[0], r.max[0]), grid.span(2, r.min[2], r.max[2]))
+        (grid.span(0, r.min[0], r.max[0]), grid.rows(r.min[2], r.max[2], b))
     };
-    let count = |((x0, x1), (z0, z1)): ((usize, usize), (usize, usize))| (x1 - x0) * (z1 - z0);
+    // Elements touched (a part-filled one counted whole) and points seeded.
+    let elements =
+        |((x0, x1), (z0, z1)): ((usize, usize), (usize, usize))| (x1 - x0) * (z1.div_ceil(b).saturating_sub(z0 / b));
+    let points = |((x0, x1), (z0, z1)): ((usize, usize), (usize, usize))| (x1 - x0) * a * z1.saturating_sub(z0);
     let soil_area = s.particles.first().and_then(|p| match &p.packing {
         PackingSpec::Deposit { region, .. } => Some(area(region)),
         PackingSpec::Explicit { .. } => None,
     });
     let liquid_area = s.fluids.first().map(|f| area(&f.region));
-    let soil_elements = soil_area.map(count).unwrap_or(0);
-    let liquid_elements = liquid_area.map(count).unwrap_or(0);
-    let overlap = match (soil_area, liquid_area) {
+    let soil_elements = soil_area.map(elements).unwrap_or(0);
+    let liquid_elements = liquid_area.map(elements).unwrap_or(0);
+    let shared = match (soil_area, liquid_area) {
         (Some(((sx0, sx1), (sz0, sz1))), Some(((lx0, lx1), (lz0, lz1)))) => {
-            sx1.min(lx1).saturating_sub(sx0.max(lx0)) * sz1.min(lz1).saturating_sub(sz0.max(lz0))
+            let common =
+                ((sx0.max(lx0), sx1.min(lx1).max(sx0.max(lx0))), (sz0.max(lz0), sz1.min(lz1).max(sz0.max(lz0))));
+            Some(common)
         }
-        _ => 0,
+        _ => None,
     };
-    let soil_points = soil_elements * ppe;
-    let liquid_points = liquid_elements * ppe;
+    let overlap = shared.map(elements).unwrap_or(0);
+    let overlap_points = shared.map(points).unwrap_or(0);
+    let soil_points = soil_area.map(points).unwrap_or(0);
+    let liquid_points = liquid_area.map(points).unwrap_or(0);
     if let Some(soil) = s.particles.first() {
         p.line(
             "soil",
@@ -85,10 +95,13 @@ fn plan_points(scene: &Scene, ppe: usize, p: &mut Plan) -> usize {
     }
     if let Some(liquid) = s.fluids.first() {
         let free = liquid_elements - overlap;
-        let split = if free == 0 {
+        let split = if liquid_points == overlap_points {
             "all in the soil's elements".to_string()
         } else {
-            format!("{} in the soil's elements, {} in {free} free-water elements", overlap * ppe, free * ppe)
+            format!(
+                "{overlap_points} in the soil's elements, {} in {free} free-water elements",
+                liquid_points - overlap_points
+            )
         };
         p.line(
             "liquid",
@@ -279,6 +292,31 @@ fn numerics_warnings(scene: &Scene, ppe: usize, p: &mut Plan) {
     }
     if let Some(unused) = schemas::scene::unused_flip_keys(&m) {
         p.warn(unused);
+    }
+    // A liquid top inside an element: that element starts part-filled, its
+    // filling ratio (the water's share of the space its grains leave) f n /
+    // (1 − f (1 − n)) for a filled share f of saturated soil (f alone above
+    // free water), and below `free_surface_fill` it is the free surface's:
+    // p = 0, and at rest its water sinks (docs/RESULTS.md, session 39).
+    if let Some(water) = s.fluids.first() {
+        let (h, top) = (m.element_size, water.region.max[2] - s.domain.min[2]);
+        let filled = top / h - (top / h).floor();
+        if filled > 1e-6 && filled < 1.0 - 1e-6 {
+            let soil_top = s.particles.first().and_then(|p| match &p.packing {
+                PackingSpec::Deposit { region, porosity: Some(n), .. } => Some((region.max[2], *n)),
+                _ => None,
+            });
+            let fill = match soil_top {
+                Some((st, n)) if (st - water.region.max[2]).abs() < 1e-9 => filled * n / (1.0 - filled * (1.0 - n)),
+                _ => filled,
+            };
+            if fill < m.free_surface_fill {
+                p.warn(format!(
+                    "the liquid's top z = {} m lies inside an element ({filled:.2} of it below the top): that element starts {fill:.2} filled, below mpm.free_surface_fill = {}, so it is the free surface's (p = 0) and at rest its water sinks by about one point row (docs/RESULTS.md, session 39); put the top on a grid line or set mpm.free_surface_fill below {fill:.2}",
+                    water.region.max[2], m.free_surface_fill
+                ));
+            }
+        }
     }
     if m.transfer.is_affine() && m.courant > 0.7 {
         p.warn(format!(
