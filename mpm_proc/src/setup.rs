@@ -168,9 +168,10 @@ struct Seeds {
 
 /// The solid and liquid points, on the a × b lattice of
 /// `mpm.points_per_element` per element, each where it lies in the soil or
-/// the liquid block (whose edges the scene validation puts on that
-/// lattice's lines: a block may end inside an element, which then holds
-/// only the points below or beside its edge), with the K0 stresses and
+/// the liquid block (the scene validation puts its x edges on grid lines
+/// and its z edges on the lattice's rows: a block's top or bottom may lie
+/// inside an element, which then holds only the rows inside the block),
+/// with the K0 stresses and
 /// hydrostatic pore pressures of `mpm.initial_stress = "k0"`; and the top
 /// of the soil, m (NaN without soil).
 fn seed_points(grid: &Grid, spec: &schemas::scene::MpmSpec, seeds: &Seeds) -> (SolidPoints, LiquidPoints, f64) {

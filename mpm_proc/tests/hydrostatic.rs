@@ -185,7 +185,10 @@ fn a_column_topped_inside_an_element_stays_saturated_to_its_top() {
     // Level to a tenth of a millimetre (the free element's drain is 0.9 mm
     // by 0.05 s, one point row 1.33 mm).
     assert!((water_top - solid_top).abs() < 1e-4, "the water's top {water_top} against the grains' {solid_top}");
-    // The same 1 % as the columns on grid lines above.
-    assert!((fz / buoyancy - 1.0).abs() < BUOYANCY_TOLERANCE, "buoyancy {fz} against {buoyancy}");
-    assert!(fx.abs() < 1e-3 * buoyancy, "a push along x {fx}");
+    // Measured 7.5e-7 (the implicit scheme's at rest, as on grid lines);
+    // 1e-4. The part-filled top element left out of the submerged area
+    // would make it 4.7 % low.
+    assert!((fz / buoyancy - 1.0).abs() < 1e-4, "buoyancy {fz} against {buoyancy}");
+    // Measured 4e-17: no push along x at rest.
+    assert!(fx.abs() < 1e-9 * buoyancy, "a push along x {fx}");
 }
