@@ -13,6 +13,9 @@
 #   _lflip09  mpm.liquid_flip_share = 0.9 (the water's transfer on FLIP)
 #   _expl     mpm.pressure_scheme = "explicit" (per-point pore pressure)
 #   _cav      mpm.cavitation_threshold = 1e5 (100 kPa of tension allowed)
+#   _hyd      mpm.surface_elements = "hydrostatic" (a saturated layer inside
+#             a part-filled element keeps its hydrostatic pressure)
+#   _free     mpm.surface_elements = "free" (such an element at p = 0)
 # e.g. sat_rough, sat_phi27, dry_phi27, sat_erg10.
 # Then: python3 bench/mpm_refinement_table.py OUT_DIR (shares, pile edge,
 # 0.5 % front per element size; observed order and the h -> 0 limit).
@@ -46,6 +49,8 @@ for c in $cases; do
       lflip09) sets+=(--set mpm.liquid_flip_share=0.9) ;;
       expl) sets+=(--set 'mpm.pressure_scheme="explicit"') ;;
       cav) sets+=(--set mpm.cavitation_threshold=1e5) ;;
+      hyd) sets+=(--set 'mpm.surface_elements="hydrostatic"') ;;
+      free) sets+=(--set 'mpm.surface_elements="free"') ;;
       *) echo "unknown case token '$token' in '$c' (see the header)" >&2; exit 2 ;;
     esac
   done

@@ -208,6 +208,42 @@ fn check_reports_the_mpm_column() {
     );
 }
 
+/// A saturated column topped inside an element (two of the top element's
+/// three point rows): checked without a warning under the implicit
+/// scheme's default `surface_elements = "hydrostatic"`, warned under
+/// `"free"` (at rest its top element drains), and `"hydrostatic"` refused
+/// under the explicit scheme, naming the key and both fixes.
+#[test]
+fn check_warns_of_a_top_inside_an_element_only_where_it_would_drain() {
+    let check = |extra: &[&str]| {
+        let top = "[0.04, 0.05, 0.058666666666666666]";
+        let out = coupler()
+            .args(["check", "scenes/ceccato2020/mpm_sat_h060.toml", "--set"])
+            .arg(format!("particles[0].packing.region.max={top}"))
+            .arg("--set")
+            .arg(format!("fluids[0].region.max={top}"))
+            .args(extra)
+            .output()
+            .unwrap();
+        (out.status.code(), String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr))
+    };
+    let (code, text) = check(&[]);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("saturated layers in elements below the fill at their hydrostatic pressure"), "{text}");
+    assert!(text.contains("warnings     none"), "{text}");
+    let (code, text) = check(&["--set", "mpm.surface_elements=\"free\""]);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("that element starts 0.44 filled, below mpm.free_surface_fill = 0.8"), "{text}");
+    let (code, text) =
+        check(&["--set", "mpm.surface_elements=\"hydrostatic\"", "--set", "mpm.pressure_scheme=\"explicit\""]);
+    assert_eq!(code, Some(2), "{text}");
+    assert!(
+        text.contains("mpm.surface_elements")
+            && text.contains("set mpm.pressure_scheme = \"implicit\", or mpm.surface_elements = \"free\""),
+        "{text}"
+    );
+}
+
 /// `coupler check` accepts every MPM scene shipped.
 #[test]
 fn check_accepts_every_mpm_scene() {

@@ -87,6 +87,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         friction_reaches_next_node: spec.wall_friction_reach == schemas::scene::MpmWallFrictionReach::NextNode,
         wall_points_take_grid_tangent: spec.wall_tangent_update == schemas::scene::MpmWallTangentUpdate::Grid,
         free_surface_fill: spec.free_surface_fill,
+        hydrostatic_surface: spec.surface_elements_in_effect() == schemas::scene::MpmSurfaceElements::Hydrostatic,
         pic_fraction: spec.pic_fraction,
         xpic_order: spec.xpic_order,
         apic: spec.transfer.is_affine(),

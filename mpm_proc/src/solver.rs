@@ -68,6 +68,11 @@ pub struct Params {
     /// own (interpolated from the nodes) or its element's
     /// (`ElementScratch::filling_ratio`).
     pub free_surface_fill: f64,
+    /// `mpm.surface_elements = "hydrostatic"`: an element below
+    /// `free_surface_fill` whose occupied part is saturated
+    /// (`ElementScratch::saturated_layer`) gets its layer's hydrostatic
+    /// pressure on its nodes instead of 0 (implicit scheme only).
+    pub hydrostatic_surface: bool,
     /// PIC share α of the point velocity update: v ← (1 − α) v_FLIP + α v_PIC.
     pub pic_fraction: f64,
     /// 1: the share α blends plain PIC; 2: XPIC(2) (Hammerquist & Nairn
@@ -366,6 +371,10 @@ struct ElementScratch {
     /// the filling ratio's measure, continuous as points cross element
     /// edges.
     domain_volume: [Vec<f64>; 2],
+    /// The solid points' pore volume V − m/ρ_s, shared by domain as
+    /// `domain_volume` (only with liquid): the space the soil's own
+    /// skeleton leaves, dilated or not, which its water should fill.
+    domain_pores: Vec<f64>,
     /// Volume-weighted moments of the pressured liquid points about the
     /// element's centre, offsets in elements: Σw, Σwξ, Σwζ, Σwξ², Σwξζ,
     /// Σwζ², Σwp, Σwξp, Σwζp, and the number of points.
@@ -401,6 +410,20 @@ impl ElementScratch {
         } else {
             f64::INFINITY
         }
+    }
+
+    /// The occupied share θ of element `e` (area `area`), grains and water
+    /// over its area (at most 1), when the water fills at least `fill` of
+    /// the pores of the soil it holds, or there is no soil: a saturated
+    /// layer, as the top of a column or a flow's front inside the element.
+    /// None where the soil's pores have drained. θ² h/2 is the depth, in
+    /// units of ρ_L g, of the element pressure that holds a horizontal
+    /// layer θh thick at rest on its nodes: its water's weight on the two
+    /// top nodes is ρ_L g θ² h²/2 per unit width (bilinear and GIMP
+    /// weights alike, the points' domains inside the element).
+    fn saturated_layer(&self, e: usize, area: f64, fill: f64) -> Option<f64> {
+        let (grains, water, pores) = (self.domain_volume[0][e], self.domain_volume[1][e], self.domain_pores[e]);
+        (pores <= 0.0 || water >= fill * pores).then(|| ((grains + water) / area).min(1.0))
     }
 }
 
@@ -641,6 +664,7 @@ impl Mpm {
                 grain_volume: vec![0.0; ne],
                 solid_point_volume: vec![0.0; ne],
                 domain_volume: [vec![0.0; ne], vec![0.0; ne]],
+                domain_pores: vec![0.0; ne],
                 pressure_moments: vec![[0.0; 10]; ne],
                 pressure_low: vec![0.0; ne],
                 volumetric_strain: vec![0.0; ne],
@@ -967,6 +991,7 @@ impl Mpm {
         let (mass_solid, mass_fluidised) = (&mut e.solid_mass_solid, &mut e.solid_mass_fluidised);
         let (grain_volume, solid_point_volume) = (&mut e.grain_volume, &mut e.solid_point_volume);
         let [domain_grains, domain_water] = &mut e.domain_volume;
+        let domain_pores = &mut e.domain_pores;
         // The two sets share nothing here: one thread each for the serial
         // counting sorts and element sums.
         let (solid_span, liquid_span) = rayon::join(
@@ -986,9 +1011,17 @@ impl Mpm {
                     grain_volume[el] += m / params.solid_density;
                     solid_point_volume[el] += solid.set.volume[p];
                 }
-                // The grains' domains only enter the liquid's filling ratio.
+                // The grains' domains only enter the liquid's filling ratio
+                // and the soil's saturation.
                 if !liquid.is_empty() {
-                    Self::spread_over_domains(&grid, &solid.set, params.solid_density, domain_grains);
+                    let rho = params.solid_density;
+                    let set = &solid.set;
+                    Self::spread_over_domains(
+                        &grid,
+                        set,
+                        |p| [set.mass[p] / rho, set.volume[p] - set.mass[p] / rho],
+                        [domain_grains, domain_pores],
+                    );
                 }
                 span
             },
@@ -998,7 +1031,8 @@ impl Mpm {
                 for &el in &self.liquid_scratch.element {
                     liquid_points[el as usize] += 1;
                 }
-                Self::spread_over_domains(&grid, liquid, params.liquid_density, domain_water);
+                let rho = params.liquid_density;
+                Self::spread_over_domains(&grid, liquid, |p| [liquid.mass[p] / rho], [domain_water]);
                 span
             },
         );
@@ -1012,17 +1046,27 @@ impl Mpm {
         self.columns = (columns.0, (columns.1 + 2).min(row_len - 1));
     }
 
-    /// Each point's own volume m/ρ shared among the elements its GIMP
-    /// domain covers, in proportion to the area it covers in each.
-    fn spread_over_domains(grid: &Grid, set: &PointSet, density: f64, volume: &mut [f64]) {
-        volume.fill(0.0);
+    /// Each point's own volumes `own(p)` (m/ρ, a pore volume) shared among
+    /// the elements its GIMP domain covers, in proportion to the area it
+    /// covers in each, into `out` (one array per volume).
+    fn spread_over_domains<const K: usize>(
+        grid: &Grid,
+        set: &PointSet,
+        own: impl Fn(usize) -> [f64; K],
+        mut out: [&mut Vec<f64>; K],
+    ) {
+        for volume in out.iter_mut() {
+            volume.fill(0.0);
+        }
         let nx = grid.elements[0];
-        for (x, &m) in set.x.iter().zip(&set.mass) {
+        for (p, x) in set.x.iter().enumerate() {
             let [(cols, wx), (rows, wz)] = grid.domain_overlap(*x, set.half);
-            let own = m / density;
+            let own = own(p);
             for (r, fz) in rows.into_iter().zip(wz) {
                 for (c, fx) in cols.into_iter().zip(wx) {
-                    volume[r * nx + c] += own * fx * fz;
+                    for (volume, v) in out.iter_mut().zip(own) {
+                        volume[r * nx + c] += v * fx * fz;
+                    }
                 }
             }
         }
@@ -2027,7 +2071,7 @@ impl Mpm {
                 // the empty part rather than compressing the water.
                 if let Some((problem, pressure)) = solved {
                     *free = !problem.is_unknown(e);
-                    *pr = if *free { 0.0 } else { pressure[e].max(-cav) };
+                    *pr = if *free { problem.given_pressure(e) } else { pressure[e].max(-cav) };
                 } else {
                     *free = fill[i] < fs_fill || el.filling_ratio(e, element_area) < fs_fill;
                     *pr = if *free { 0.0 } else { (*pr - k * el.volumetric_strain[e]).max(-cav) };
@@ -2098,6 +2142,8 @@ impl Mpm {
         let nodes = self.active_nodes();
         let Some(imp) = self.implicit.as_mut() else { return };
         let p = &self.params;
+        // ρ_L g_z h/2: the pressure that holds a full element's water layer.
+        let surface_head = p.liquid_density * (-p.gravity[1]).max(0.0) * grid.h / 2.0;
         let problem = &mut imp.problem;
         problem.reset(p.dt, p.bulk_modulus);
         for node in nodes {
@@ -2115,7 +2161,12 @@ impl Mpm {
                     continue;
                 }
                 let saturation = el.filling_ratio(e, area);
-                let role = ElementRole::classify(true, saturation, p.free_surface_fill);
+                let mut role = ElementRole::classify(true, saturation, p.free_surface_fill);
+                if role == ElementRole::Given(0.0) && p.hydrostatic_surface {
+                    if let Some(theta) = el.saturated_layer(e, area, p.free_surface_fill) {
+                        role = ElementRole::Given(surface_head * theta * theta);
+                    }
+                }
                 let [w, wp] = imp.reference[e];
                 let reference = if w > 0.0 { wp / w } else { 0.0 };
                 problem.set_element(e, el.porosity[e], el.grad_porosity[e], reference, role);
@@ -2423,6 +2474,39 @@ mod tests {
         // Free water, half an element of it; grains leaving no space.
         assert!((f(element(0.0, 0.5)) - 0.5).abs() < 1e-12);
         assert_eq!(f(element(1.0, 0.0)), f64::INFINITY);
+    }
+
+    /// One element of area 1: grains, water and the solid points' pores.
+    fn layer(grains: f64, water: f64, pores: f64) -> Option<f64> {
+        let e = ElementScratch {
+            domain_volume: [vec![grains], vec![water]],
+            domain_pores: vec![pores],
+            ..Default::default()
+        };
+        e.saturated_layer(0, 1.0, 0.8)
+    }
+
+    #[test]
+    fn a_saturated_layer_is_told_from_a_drained_element() {
+        let close = |a: Option<f64>, b: f64| a.is_some_and(|a| (a - b).abs() < 1e-12);
+        // The top of a column at rest inside an element: two of its three
+        // point rows of soil at n = 0.4 and their water (fill ratio 0.44,
+        // below 0.8), the water filling the soil's pores: θ = 2/3.
+        let two_thirds = 2.0 / 3.0;
+        assert!(close(layer(0.6 * two_thirds, 0.4 * two_thirds, 0.4 * two_thirds), two_thirds));
+        // The same soil drained of half its water: no layer, p = 0.
+        assert_eq!(layer(0.6 * two_thirds, 0.2 * two_thirds, 0.4 * two_thirds), None);
+        // The lab column's spike elements: 10 solid points (pores 10/12 −
+        // 0.5) holding 6 liquid points (0.2): drained. 5 solid points
+        // under 10 liquid ones: the soil's pores full, water above them.
+        assert_eq!(layer(0.5, 0.2, 10.0 / 12.0 - 0.5), None);
+        assert!(close(layer(0.25, 10.0 * 0.4 / 12.0, 5.0 / 12.0 - 0.25), 0.25 + 1.0 / 3.0));
+        // Free water, a third of an element.
+        assert!(close(layer(0.0, 1.0 / 3.0, 0.0), 1.0 / 3.0));
+        // A soil dilated to n = 0.5 over half the element: saturated (θ =
+        // 0.5), or its pores grown without water flowing in (S = 2/3).
+        assert!(close(layer(0.25, 0.25, 0.25), 0.5));
+        assert_eq!(layer(0.25, 0.25 * 2.0 / 3.0, 0.25), None);
     }
 
     /// Moments of `points` (offset, pressure, weight) as `reconstruct_pressure` sums them.

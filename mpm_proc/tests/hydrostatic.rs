@@ -147,43 +147,65 @@ fn a_dry_top_above_the_water_table_carries_its_full_weight() {
 
 /// A column whose top lies inside an element (the soil and the water
 /// topped at 58 2/3 mm: 14 elements of 4 mm and two of the three point rows
-/// of the next, the points' lattice the scene validation allows). At rest
-/// the exact answer is the same as on a grid line: the water stays level
-/// with the grains' top and the liquid buoys the submerged grains with
-/// ρ_L g (1 − n) L (h − h_e/2) (the floor's half element row held). The
-/// top element's fill ratio is ~0.44 (its grains fill 0.4 of it, its water
-/// 0.27 of the 0.6 they leave), so it is pressured only under a threshold
-/// below that: `free_surface_fill = 0.3` here. (Under the default 0.8 the
-/// element is free, p = 0, and its water sinks by one point row, 1.3 mm,
-/// over 0.4 s: docs/RESULTS.md, session 39, "At rest, a partly filled
-/// top element drains".)
-#[test]
-fn a_column_topped_inside_an_element_stays_saturated_to_its_top() {
+/// of the next, the points' lattice the scene validation allows), held
+/// 0.1 s after its gravity phase under the `[mpm]` keys `mpm_keys`.
+/// Returns the grains' and the water's top at the start and at the end,
+/// m, and the liquid's mean force on the grains over the 0.1 s, N/m, with
+/// its exact value at rest, ρ_L g (1 − n) L (h − h_e/2) (the floor's half
+/// element row held).
+fn topped_inside_an_element(mpm_keys: &str) -> ([f64; 2], [f64; 2], [f64; 2], f64) {
     let h_e = 0.004;
     let top = 0.06 - h_e / 3.0;
-    let scene = common::column(0.04, top, 0.08, Some(top), 2.5e-3, "free_surface_fill = 0.3", &[]);
+    let scene = common::column(0.04, top, 0.08, Some(top), 2.5e-3, mpm_keys, &[]);
     let mut setup = build(&scene).unwrap();
     let mpm = &mut setup.mpm;
     assert_eq!(mpm.grid.h, h_e);
     gravity_phase(&scene, mpm, &AtomicBool::new(false), &mut Quiet);
     mpm.take_liquid_impulse();
     let highest = |x: &[[f64; 2]]| x.iter().fold(f64::NEG_INFINITY, |m, p| m.max(p[1]));
-    let start = (highest(&mpm.state.solid.set.x), highest(&mpm.state.liquid.set.x));
+    let start = [highest(&mpm.state.solid.set.x), highest(&mpm.state.liquid.set.x)];
     for _ in 0..(0.1 / mpm.params.dt) as usize {
         mpm.step();
     }
-    let (solid_top, water_top) = (highest(&mpm.state.solid.set.x), highest(&mpm.state.liquid.set.x));
-    let [fx, fz] = mpm.take_liquid_impulse().mean_force();
+    let end = [highest(&mpm.state.solid.set.x), highest(&mpm.state.liquid.set.x)];
+    let force = mpm.take_liquid_impulse().mean_force();
     let buoyancy = 1000.0 * G * 0.6 * 0.04 * (top - 0.5 * h_e);
     eprintln!(
-        "tops at the start: grains {:.5}, water {:.5} m; after 0.1 s: grains {solid_top:.5}, water {water_top:.5} m; liquid force [{fx:.2e}, {fz:.5}] N/m against {buoyancy:.5}",
-        start.0, start.1
+        "{mpm_keys:?}: tops at the start: grains {:.5}, water {:.5} m; after 0.1 s: grains {:.5}, water {:.5} m; liquid force [{:.2e}, {:.5}] N/m against {buoyancy:.5}",
+        start[0], start[1], end[0], end[1], force[0], force[1]
     );
-    // Both top point rows sit h_e/6 below the block's top, seeded; the
-    // gravity phase moves them by 4e-8 m (measured).
-    assert!((start.0 - (top - h_e / 6.0)).abs() < 1e-6 && (start.1 - start.0).abs() < 1e-6, "{start:?}");
-    // Level to a tenth of a millimetre (the free element's drain is 0.9 mm
-    // by 0.05 s, one point row 1.33 mm).
+    (start, end, force, buoyancy)
+}
+
+/// At rest the exact answer for a column topped inside an element is the
+/// one on a grid line: the water stays level with the grains' top and
+/// buoys them fully. The top element's fill ratio is ~0.44 (its grains
+/// fill 0.4 of it, its water 0.27 of the 0.6 they leave): pressured
+/// (unknown) only under a threshold below that, `free_surface_fill = 0.3`.
+#[test]
+fn a_column_topped_inside_an_element_stays_saturated_to_its_top() {
+    assert_saturated_at_rest(topped_inside_an_element("free_surface_fill = 0.3"));
+}
+
+/// The same column under the default threshold (0.8), where the top
+/// element is below it: under `surface_elements = "hydrostatic"` its
+/// water fills its soil's pores, so it gets its layer's pressure ρ_L g θ²
+/// h/2 and the column stays as on a grid line; under `"free"` (p = 0) its
+/// water, held by drag alone, sinks through the grains (measured: 0.77 mm
+/// in the gravity phase and 0.24 mm more in the 0.1 s after it, of its
+/// 2.67 mm layer): the control that this test sees a drain.
+#[test]
+fn a_column_topped_inside_an_element_keeps_its_water_under_the_default_fill() {
+    assert_saturated_at_rest(topped_inside_an_element("surface_elements = \"hydrostatic\""));
+    let (_, [solid_top, water_top], _, _) = topped_inside_an_element("surface_elements = \"free\"");
+    assert!(water_top < solid_top - 1e-3, "a free top element drains: water {water_top} against grains {solid_top}");
+}
+
+fn assert_saturated_at_rest((start, [solid_top, water_top], [fx, fz], buoyancy): ([f64; 2], [f64; 2], [f64; 2], f64)) {
+    // Both top point rows sit h_e/6 = 2/3 mm below the block's top at
+    // 58 2/3 mm, seeded; the gravity phase moves them by 4e-8 m (measured).
+    assert!((start[0] - 0.058).abs() < 1e-6 && (start[1] - start[0]).abs() < 1e-6, "{start:?}");
+    // Level to a tenth of a millimetre (a point row is 1.33 mm).
     assert!((water_top - solid_top).abs() < 1e-4, "the water's top {water_top} against the grains' {solid_top}");
     // Measured 7.5e-7 (the implicit scheme's at rest, as on grid lines);
     // 1e-4. The part-filled top element left out of the submerged area

@@ -484,6 +484,23 @@ pub struct MpmSpec {
     /// `pressure_reconstruction` is not used.
     #[serde(default)]
     pub pressure_scheme: MpmPressureScheme,
+    /// Under `pressure_scheme = "implicit"`: the pore pressure of an
+    /// element below `free_surface_fill` whose water fills the pores of
+    /// the soil it holds (or that holds water alone), a saturated layer
+    /// at the bottom of the element: the surface of a column or of a
+    /// flow's front lying inside it. `free`: p = 0, as in a draining
+    /// element (its water is held by drag alone and drains through the
+    /// grains); `hydrostatic`: p = ρ_L g_z θ² h/2, θ the element's
+    /// occupied share (grains and water over its area), the pressure that
+    /// holds such a layer's water at rest on the element's nodes. Drained
+    /// elements (water below `free_surface_fill` of their soil's pores)
+    /// stay free under both (docs/mpm.md, "Pore pressure"). Default
+    /// `hydrostatic` under the implicit scheme (since session 40: a column
+    /// topped inside an element then stays hydrostatic at rest, where
+    /// under `free` its top element's water sank 1 mm); the explicit
+    /// scheme has `free` only.
+    #[serde(default)]
+    pub surface_elements: Option<MpmSurfaceElements>,
     /// Under `pressure_scheme = "implicit"`: the absolute pressure of the
     /// air in the pores, Pa. A pressured element that is part empty
     /// (filling ratio S below 1) holds water and air, whose bulk modulus
@@ -591,6 +608,15 @@ impl MpmSpec {
             MpmTransfer::Aflip => self.flip_share.unwrap_or(DEFAULT_FLIP_SHARE),
             _ => 0.0,
         }
+    }
+
+    /// `surface_elements` in effect: as set, else `hydrostatic` under the
+    /// implicit scheme and `free` under the explicit one.
+    pub fn surface_elements_in_effect(&self) -> MpmSurfaceElements {
+        self.surface_elements.unwrap_or(match self.pressure_scheme {
+            MpmPressureScheme::Implicit => MpmSurfaceElements::Hydrostatic,
+            MpmPressureScheme::Explicit => MpmSurfaceElements::Free,
+        })
     }
 
     /// The liquid points' FLIP share in effect: `liquid_flip_share`
@@ -794,6 +820,17 @@ pub enum MpmPressureScheme {
     /// Semi-implicit: one SPD system per step for the element pressures.
     #[default]
     Implicit,
+}
+
+/// The pore pressure of a part-filled element whose occupied part is
+/// saturated (`MpmSpec::surface_elements`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MpmSurfaceElements {
+    /// p = 0, as a drained element.
+    Free,
+    /// The hydrostatic pressure of its layer on the element's nodes.
+    Hydrostatic,
 }
 
 /// How an element's liquid points' pore pressures are tied together.
@@ -1745,6 +1782,12 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
     v.positive("mpm.ergun_b", m.ergun_b);
     v.half_open("mpm.free_surface_fill", m.free_surface_fill, 0.0, 1.0);
     v.positive("mpm.air_pressure", m.air_pressure);
+    if m.surface_elements == Some(MpmSurfaceElements::Hydrostatic) && m.pressure_scheme == MpmPressureScheme::Explicit {
+        v.fail(
+            "mpm.surface_elements",
+            "= \"hydrostatic\" gives part-filled elements a pressure in the element-pressure solve, which the explicit scheme does not have; set mpm.pressure_scheme = \"implicit\", or mpm.surface_elements = \"free\"".to_string(),
+        );
+    }
     v.in_range("mpm.pic_fraction", m.pic_fraction, 0.0, 1.0);
     if m.transfer.is_affine() && m.shape_functions == ShapeFunctions::Linear {
         // Measured: a block sliding on a frictional floor blew up once its

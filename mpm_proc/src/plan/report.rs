@@ -5,8 +5,8 @@
 
 use schemas::plan::Plan;
 use schemas::scene::{
-    Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmPressureScheme, MpmTransfer, MpmWallContact,
-    MpmWallFrictionReach, MpmWallTangentUpdate, PackingSpec, Scene,
+    Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmPressureScheme, MpmSurfaceElements, MpmTransfer,
+    MpmWallContact, MpmWallFrictionReach, MpmWallTangentUpdate, PackingSpec, Scene,
 };
 
 use super::{self as mpm, SceneMpm};
@@ -240,7 +240,14 @@ fn plan_materials(scene: &Scene, ts: &mpm::MpmTimeStep, p: &mut Plan) {
             m.cavitation_threshold,
             m.free_surface_fill,
             match (m.pressure_scheme, m.pressure_reconstruction) {
-                (MpmPressureScheme::Implicit, _) => format!("pore pressure semi-implicit, one per pressured element; air in part-filled ones at {} Pa", m.air_pressure),
+                (MpmPressureScheme::Implicit, _) => format!(
+                    "pore pressure semi-implicit, one per pressured element; air in part-filled ones at {} Pa; saturated layers in elements below the fill {}",
+                    m.air_pressure,
+                    match m.surface_elements_in_effect() {
+                        MpmSurfaceElements::Hydrostatic => "at their hydrostatic pressure",
+                        MpmSurfaceElements::Free => "free (p = 0)",
+                    }
+                ),
                 (_, MpmPressureReconstruction::Linear) => "pore pressure a least-squares plane per element".to_string(),
                 (_, MpmPressureReconstruction::None) => "pore pressure per point".to_string(),
             }
@@ -296,9 +303,12 @@ fn numerics_warnings(scene: &Scene, ppe: usize, p: &mut Plan) {
     // A liquid top inside an element: that element starts part-filled, its
     // filling ratio (the water's share of the space its grains leave) f n /
     // (1 − f (1 − n)) for a filled share f of saturated soil (f alone above
-    // free water), and below `free_surface_fill` it is the free surface's:
-    // p = 0, and at rest its water sinks (docs/RESULTS.md, session 39).
-    if let Some(water) = s.fluids.first() {
+    // free water), and below `free_surface_fill` under `surface_elements =
+    // "free"` it is the free surface's: p = 0, and at rest its water sinks
+    // (docs/RESULTS.md, session 39). Under "hydrostatic" (the implicit
+    // scheme's default) its saturated layer keeps its pressure.
+    let free_surface_elements = m.surface_elements_in_effect() == MpmSurfaceElements::Free;
+    if let (Some(water), true) = (s.fluids.first(), free_surface_elements) {
         let (h, top) = (m.element_size, water.region.max[2] - s.domain.min[2]);
         let filled = top / h - (top / h).floor();
         if filled > 1e-6 && filled < 1.0 - 1e-6 {
@@ -312,7 +322,7 @@ fn numerics_warnings(scene: &Scene, ppe: usize, p: &mut Plan) {
             };
             if fill < m.free_surface_fill {
                 p.warn(format!(
-                    "the liquid's top z = {} m lies inside an element ({filled:.2} of it below the top): that element starts {fill:.2} filled, below mpm.free_surface_fill = {}, so it is the free surface's (p = 0) and at rest its water sinks by about one point row (docs/RESULTS.md, session 39); put the top on a grid line or set mpm.free_surface_fill below {fill:.2}",
+                    "the liquid's top z = {} m lies inside an element ({filled:.2} of it below the top): that element starts {fill:.2} filled, below mpm.free_surface_fill = {}, so under mpm.surface_elements = \"free\" it is the free surface's (p = 0) and at rest its water sinks by about one point row (docs/RESULTS.md, session 39); put the top on a grid line, set mpm.free_surface_fill below {fill:.2}, or use the implicit scheme's surface_elements = \"hydrostatic\"",
                     water.region.max[2], m.free_surface_fill
                 ));
             }
