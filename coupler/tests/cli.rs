@@ -211,22 +211,31 @@ fn check_reports_the_mpm_column() {
 /// A saturated column topped inside an element (two of the top element's
 /// three point rows): checked without a warning under the implicit
 /// scheme's default `surface_elements = "hydrostatic"`, warned under
-/// `"free"` (at rest its top element drains), and `"hydrostatic"` refused
-/// under the explicit scheme, naming the key and both fixes.
+/// `"free"` (at rest its top element drains) and, under either, where the
+/// water's top lies inside an element below the soil's (too little water
+/// for that soil's pores: drained); `"hydrostatic"` refused under the
+/// explicit scheme, naming the key and both fixes.
 #[test]
 fn check_warns_of_a_top_inside_an_element_only_where_it_would_drain() {
-    let check = |extra: &[&str]| {
-        let top = "[0.04, 0.05, 0.058666666666666666]";
+    let inside = "[0.04, 0.05, 0.058666666666666666]";
+    let check_tops = |soil: &str, extra: &[&str]| {
         let out = coupler()
             .args(["check", "scenes/ceccato2020/mpm_sat_h060.toml", "--set"])
-            .arg(format!("particles[0].packing.region.max={top}"))
+            .arg(format!("particles[0].packing.region.max={soil}"))
             .arg("--set")
-            .arg(format!("fluids[0].region.max={top}"))
+            .arg(format!("fluids[0].region.max={inside}"))
             .args(extra)
             .output()
             .unwrap();
         (out.status.code(), String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr))
     };
+    let check = |extra: &[&str]| check_tops(inside, extra);
+    let (code, text) = check_tops("[0.04, 0.05, 0.06]", &[]);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(
+        text.contains("lies inside an element (0.67 of it below the top) under the soil's top z = 0.06 m: that element starts 0.67 filled"),
+        "{text}"
+    );
     let (code, text) = check(&[]);
     assert_eq!(code, Some(0), "{text}");
     assert!(text.contains("saturated layers in elements below the fill at their hydrostatic pressure"), "{text}");

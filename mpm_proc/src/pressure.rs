@@ -161,8 +161,10 @@ pub enum ElementRole {
     /// Its pressure is solved for: the set P.
     Unknown,
     /// Its pressure is given, Pa: 0 at the free surface, in drained or part
-    /// empty elements and where there is no liquid; −T at the cavitation
-    /// cap (a later active-set loop).
+    /// empty elements and where there is no liquid; a saturated layer's
+    /// hydrostatic pressure in a part-filled element (the solver's
+    /// `surface_elements = "hydrostatic"`); −T at the cavitation cap (a
+    /// later active-set loop).
     Given(f64),
 }
 
@@ -171,7 +173,8 @@ impl ElementRole {
     /// filling ratio F_e (`ElementScratch::filling_ratio`, ∞ where the
     /// grains leave no space) of at least `free_surface_fill` is pressured;
     /// every other element is free surface, p = 0 (as the explicit
-    /// scheme's free-surface rule in `update_liquid_points`).
+    /// scheme's free-surface rule in `update_liquid_points`), which the
+    /// solver may raise to a saturated layer's pressure.
     pub fn classify(has_liquid: bool, filling_ratio: f64, free_surface_fill: f64) -> Self {
         if has_liquid && filling_ratio >= free_surface_fill {
             Self::Unknown

@@ -191,7 +191,9 @@ pub struct LiquidPoints {
     pub pressure: Vec<f64>,
     /// Viscous stress (τ_xx, τ_zz, τ_xz, τ_yy), Pa.
     pub viscous: Vec<[f64; 4]>,
-    /// On the free surface at the last step (p held at 0).
+    /// Out of the pressure solve at the last step: p held at 0, or under
+    /// the implicit scheme's `surface_elements = "hydrostatic"` at a
+    /// saturated layer's given pressure (`ElementScratch::saturated_layer`).
     pub free_surface: Vec<bool>,
 }
 
@@ -312,8 +314,10 @@ struct ImplicitPressure {
     solver: PressureSolver,
     /// Per element: the pressures of the step, Pa (given ones included).
     pressure: Vec<f64>,
-    /// Per element: Σ V and Σ V p over its pressured liquid points.
-    reference: Vec<[f64; 2]>,
+    /// Per element: Σ V and Σ V p over its pressured liquid points, then
+    /// over its free ones (which carry a saturated layer's given pressure
+    /// under `Params::hydrostatic_surface`, else 0).
+    reference: Vec<[f64; 4]>,
     /// Per node: the predictor velocities v*, then the corrected ones, m/s.
     velocity: [Vec<[f64; 2]>; 2],
     /// Per node: the pressure forces Dᵀp on [solid, liquid], N/m.
@@ -328,7 +332,7 @@ impl ImplicitPressure {
             problem: PressureProblem::new(grid, params.dt, params.bulk_modulus),
             solver: PressureSolver::new(PRESSURE_TOLERANCE, PRESSURE_MAX_ITERATIONS),
             pressure: vec![0.0; ne],
-            reference: vec![[0.0; 2]; ne],
+            reference: vec![[0.0; 4]; ne],
             velocity: [vec![[0.0; 2]; nodes], vec![[0.0; 2]; nodes]],
             pressure_force: [vec![[0.0; 2]; nodes], vec![[0.0; 2]; nodes]],
             stats: PressureStats::default(),
@@ -2036,7 +2040,8 @@ impl Mpm {
     /// Pore pressure, viscous stress, volume and position of liquid points.
     /// `solved`: under the implicit scheme, the step's pressure problem and
     /// element pressures; a point takes its element's (design §1 step 7),
-    /// 0 and free where the element was not pressured.
+    /// and is free where the element was not solved for, at its given
+    /// pressure (0, or a saturated layer's).
     #[allow(clippy::too_many_arguments)]
     fn update_liquid_points(
         grid: &Grid,
@@ -2112,17 +2117,18 @@ impl Mpm {
     /// Step 1: per element, Σ V and Σ V p over its pressured (not free)
     /// liquid points, p the pressure each carried in (its element's at the
     /// last step): p̄_e, the backward Euler's old pressure and the solve's
-    /// warm start.
+    /// warm start. An element none of whose points was pressured takes
+    /// its free points' mean instead: a saturated layer's given pressure
+    /// (`Params::hydrostatic_surface`) when it enters the solve, 0 otherwise.
     fn pressure_reference(&mut self) {
         let Some(imp) = self.implicit.as_mut() else { return };
         let l = &self.state.liquid;
-        imp.reference.fill([0.0; 2]);
+        imp.reference.fill([0.0; 4]);
         for (p, &e) in self.liquid_scratch.element.iter().enumerate() {
-            if !l.free_surface[p] {
-                let (w, r) = (l.set.volume[p], &mut imp.reference[e as usize]);
-                r[0] += w;
-                r[1] += w * l.pressure[p];
-            }
+            let k = if l.free_surface[p] { 2 } else { 0 };
+            let (w, r) = (l.set.volume[p], &mut imp.reference[e as usize]);
+            r[k] += w;
+            r[k + 1] += w * l.pressure[p];
         }
     }
 
@@ -2130,7 +2136,10 @@ impl Mpm {
     /// mass gets its masked predictor mobility (masses, the drag Q of
     /// `solve_nodes`); every element with liquid its porosity field, p̄ and
     /// role: unknown where its filling ratio is at least
-    /// `free_surface_fill` (`ElementRole::classify`), p = 0 otherwise; an
+    /// `free_surface_fill` (`ElementRole::classify`); otherwise given, a
+    /// saturated layer's hydrostatic pressure under
+    /// `Params::hydrostatic_surface` (`ElementScratch::saturated_layer`), p = 0
+    /// where the soil has drained or under `"free"`; an
     /// unknown element filled below 1 holds water and air, with the pore
     /// fluid's modulus of `pore_fluid_modulus` at the air's absolute
     /// pressure `air_pressure` + p̄ (design note §7: without it, an element
@@ -2167,8 +2176,14 @@ impl Mpm {
                         role = ElementRole::Given(surface_head * theta * theta);
                     }
                 }
-                let [w, wp] = imp.reference[e];
-                let reference = if w > 0.0 { wp / w } else { 0.0 };
+                let [w, wp, w_free, wp_free] = imp.reference[e];
+                let reference = if w > 0.0 {
+                    wp / w
+                } else if w_free > 0.0 {
+                    wp_free / w_free
+                } else {
+                    0.0
+                };
                 problem.set_element(e, el.porosity[e], el.grad_porosity[e], reference, role);
                 if role == ElementRole::Unknown && saturation < 1.0 {
                     let air = p.air_pressure + reference.max(0.0);

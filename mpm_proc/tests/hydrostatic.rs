@@ -145,18 +145,30 @@ fn a_dry_top_above_the_water_table_carries_its_full_weight() {
     at_rest(0.06, 0.04, 0.08, "");
 }
 
-/// A column whose top lies inside an element (the soil and the water
-/// topped at 58 2/3 mm: 14 elements of 4 mm and two of the three point rows
-/// of the next, the points' lattice the scene validation allows), held
-/// 0.1 s after its gravity phase under the `[mpm]` keys `mpm_keys`.
-/// Returns the grains' and the water's top at the start and at the end,
-/// m, and the liquid's mean force on the grains over the 0.1 s, N/m, with
-/// its exact value at rest, ρ_L g (1 − n) L (h − h_e/2) (the floor's half
-/// element row held).
-fn topped_inside_an_element(mpm_keys: &str) -> ([f64; 2], [f64; 2], [f64; 2], f64) {
+/// What a column held at rest for 0.1 s after its gravity phase shows.
+struct HeldAtRest {
+    /// The grains' and the water's top at the start and at the end, m.
+    start: [f64; 2],
+    end: [f64; 2],
+    /// The liquid's mean force on the grains over the 0.1 s, N/m.
+    force: [f64; 2],
+    /// Its exact value at rest with the soil saturated to `soil_top`,
+    /// ρ_L g (1 − n) L (soil_top − h_e/2) (the floor's half element row
+    /// held), N/m.
+    buoyancy: f64,
+    /// The least and the largest pressure among the liquid points of the
+    /// top element (56–60 mm), Pa, and whether they are all free (out of
+    /// the pressure solve).
+    top_element: (f64, f64, bool),
+}
+
+/// A column of soil topped at `soil_top` and water at `water_top` (m) on
+/// 4 mm elements, 12 + 12 points per element (rows every 4/3 mm, the
+/// points' lattice the scene validation allows a top on), held 0.1 s
+/// after its gravity phase under the `[mpm]` keys `mpm_keys`.
+fn held_at_rest(soil_top: f64, water_top: f64, mpm_keys: &str) -> HeldAtRest {
     let h_e = 0.004;
-    let top = 0.06 - h_e / 3.0;
-    let scene = common::column(0.04, top, 0.08, Some(top), 2.5e-3, mpm_keys, &[]);
+    let scene = common::column(0.04, soil_top, 0.08, Some(water_top), 2.5e-3, mpm_keys, &[]);
     let mut setup = build(&scene).unwrap();
     let mpm = &mut setup.mpm;
     assert_eq!(mpm.grid.h, h_e);
@@ -169,13 +181,23 @@ fn topped_inside_an_element(mpm_keys: &str) -> ([f64; 2], [f64; 2], [f64; 2], f6
     }
     let end = [highest(&mpm.state.solid.set.x), highest(&mpm.state.liquid.set.x)];
     let force = mpm.take_liquid_impulse().mean_force();
-    let buoyancy = 1000.0 * G * 0.6 * 0.04 * (top - 0.5 * h_e);
+    let buoyancy = 1000.0 * G * 0.6 * 0.04 * (soil_top - 0.5 * h_e);
+    let l = &mpm.state.liquid;
+    let top_element = (0..l.set.len())
+        .filter(|&p| l.set.x[p][1] > 14.0 * h_e)
+        .fold((f64::INFINITY, f64::NEG_INFINITY, true), |(lo, hi, free), p| {
+            (lo.min(l.pressure[p]), hi.max(l.pressure[p]), free && l.free_surface[p])
+        });
     eprintln!(
-        "{mpm_keys:?}: tops at the start: grains {:.5}, water {:.5} m; after 0.1 s: grains {:.5}, water {:.5} m; liquid force [{:.2e}, {:.5}] N/m against {buoyancy:.5}",
+        "{mpm_keys:?}: tops at the start: grains {:.5}, water {:.5} m; after 0.1 s: grains {:.5}, water {:.5} m; liquid force [{:.2e}, {:.5}] N/m against {buoyancy:.5}; top element's water {top_element:?}",
         start[0], start[1], end[0], end[1], force[0], force[1]
     );
-    (start, end, force, buoyancy)
+    HeldAtRest { start, end, force, buoyancy, top_element }
 }
+
+/// 58 2/3 mm: 14 elements of 4 mm and two of the three point rows of the
+/// next.
+const INSIDE: f64 = 0.06 - 0.004 / 3.0;
 
 /// At rest the exact answer for a column topped inside an element is the
 /// one on a grid line: the water stays level with the grains' top and
@@ -184,33 +206,67 @@ fn topped_inside_an_element(mpm_keys: &str) -> ([f64; 2], [f64; 2], [f64; 2], f6
 /// (unknown) only under a threshold below that, `free_surface_fill = 0.3`.
 #[test]
 fn a_column_topped_inside_an_element_stays_saturated_to_its_top() {
-    assert_saturated_at_rest(topped_inside_an_element("free_surface_fill = 0.3"));
+    assert_saturated_at_rest(&held_at_rest(INSIDE, INSIDE, "free_surface_fill = 0.3"));
 }
 
 /// The same column under the default threshold (0.8), where the top
 /// element is below it: under `surface_elements = "hydrostatic"` its
-/// water fills its soil's pores, so it gets its layer's pressure ρ_L g θ²
-/// h/2 and the column stays as on a grid line; under `"free"` (p = 0) its
-/// water, held by drag alone, sinks through the grains (measured: 0.77 mm
-/// in the gravity phase and 0.24 mm more in the 0.1 s after it, of its
+/// water fills its soil's pores, so its liquid points, left out of the
+/// solve, get its layer's pressure ρ_L g θ² h/2 = 8.72 Pa (θ = 2/3) and
+/// the column stays as on a grid line; under `"free"` (p = 0) its water,
+/// held by drag alone, sinks through the grains (measured: 0.77 mm in
+/// the gravity phase and 0.24 mm more in the 0.1 s after it, of its
 /// 2.67 mm layer): the control that this test sees a drain.
 #[test]
 fn a_column_topped_inside_an_element_keeps_its_water_under_the_default_fill() {
-    assert_saturated_at_rest(topped_inside_an_element("surface_elements = \"hydrostatic\""));
-    let (_, [solid_top, water_top], _, _) = topped_inside_an_element("surface_elements = \"free\"");
-    assert!(water_top < solid_top - 1e-3, "a free top element drains: water {water_top} against grains {solid_top}");
+    let held = held_at_rest(INSIDE, INSIDE, "surface_elements = \"hydrostatic\"");
+    assert_saturated_at_rest(&held);
+    let layer = 1000.0 * G * (2.0f64 / 3.0).powi(2) * 0.004 / 2.0;
+    let (lo, hi, free) = held.top_element;
+    assert!(
+        free && (lo - layer).abs() < 1e-9 * layer && (hi - layer).abs() < 1e-9 * layer,
+        "{:?} against {layer}",
+        held.top_element
+    );
+    let [solid_top, water_top] = held_at_rest(INSIDE, INSIDE, "surface_elements = \"free\"").end;
+    assert!(water_top < solid_top - 5e-4, "a free top element drains: water {water_top} against grains {solid_top}");
 }
 
-fn assert_saturated_at_rest((start, [solid_top, water_top], [fx, fz], buoyancy): ([f64; 2], [f64; 2], [f64; 2], f64)) {
+/// Free water above the soil, topped inside an element (the soil to
+/// 40 mm, a grid line): the top element holds water alone, two of its
+/// three point rows, and under the default `"hydrostatic"` keeps its
+/// layer's pressure, 8.72 Pa, and its level (under `"free"` it would fall
+/// onto the water below, p = 0).
+#[test]
+fn free_water_topped_inside_an_element_keeps_its_level() {
+    let held = held_at_rest(0.04, INSIDE, "");
+    let layer = 1000.0 * G * (2.0f64 / 3.0).powi(2) * 0.004 / 2.0;
+    let (lo, hi, free) = held.top_element;
+    assert!(
+        free && (lo - layer).abs() < 1e-9 * layer && (hi - layer).abs() < 1e-9 * layer,
+        "{:?} against {layer}",
+        held.top_element
+    );
+    // The water's top row seeded h_e/6 below its top; level to a tenth
+    // of a millimetre over the 0.1 s (a point row is 1.33 mm).
+    assert!((held.start[1] - 0.058).abs() < 1e-6, "{:?}", held.start);
+    assert!((held.end[1] - held.start[1]).abs() < 1e-4, "the water's top {} from {}", held.end[1], held.start[1]);
+    // The soil below is saturated to its top, the water above it adding
+    // no lift on the grains: the buoyancy of the soil alone, to 1e-4.
+    assert!((held.force[1] / held.buoyancy - 1.0).abs() < 1e-4, "buoyancy {} against {}", held.force[1], held.buoyancy);
+}
+
+fn assert_saturated_at_rest(held: &HeldAtRest) {
+    let ([start_solid, start_water], [solid_top, water_top], [fx, fz]) = (held.start, held.end, held.force);
     // Both top point rows sit h_e/6 = 2/3 mm below the block's top at
     // 58 2/3 mm, seeded; the gravity phase moves them by 4e-8 m (measured).
-    assert!((start[0] - 0.058).abs() < 1e-6 && (start[1] - start[0]).abs() < 1e-6, "{start:?}");
+    assert!((start_solid - 0.058).abs() < 1e-6 && (start_water - start_solid).abs() < 1e-6, "{:?}", held.start);
     // Level to a tenth of a millimetre (a point row is 1.33 mm).
     assert!((water_top - solid_top).abs() < 1e-4, "the water's top {water_top} against the grains' {solid_top}");
     // Measured 7.5e-7 (the implicit scheme's at rest, as on grid lines);
     // 1e-4. The part-filled top element left out of the submerged area
     // would make it 4.7 % low.
-    assert!((fz / buoyancy - 1.0).abs() < 1e-4, "buoyancy {fz} against {buoyancy}");
+    assert!((fz / held.buoyancy - 1.0).abs() < 1e-4, "buoyancy {fz} against {}", held.buoyancy);
     // Measured 4e-17: no push along x at rest.
-    assert!(fx.abs() < 1e-9 * buoyancy, "a push along x {fx}");
+    assert!(fx.abs() < 1e-9 * held.buoyancy, "a push along x {fx}");
 }

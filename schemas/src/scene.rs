@@ -456,9 +456,11 @@ pub struct MpmSpec {
     /// An element is pressured when its filling ratio (the water over the
     /// space its grains leave, each point counted by the share of its
     /// domain inside it) is at least this, else its liquid points are on
-    /// the free surface with zero pore pressure; the explicit scheme also
-    /// frees a point whose interpolated (nodal) filling ratio is below it
-    /// (docs/mpm.md, "Pore pressure"). Default 0.8.
+    /// the free surface with zero pore pressure (or, under
+    /// `surface_elements = "hydrostatic"`, a saturated layer's pressure
+    /// where the water fills at least this share of its soil's pores); the
+    /// explicit scheme also frees a point whose interpolated (nodal)
+    /// filling ratio is below it (docs/mpm.md, "Pore pressure"). Default 0.8.
     #[serde(default = "default_mpm_fill")]
     pub free_surface_fill: f64,
     /// How the pore pressures of an element's liquid points are tied
@@ -1953,8 +1955,9 @@ fn check_mpm_scene(v: &mut Validator, spec: &SceneSpec, gate_normals: &[[f64; 3]
             on_grid(v, key, a, value, what);
         } else {
             let lines = format!(
-                "a grid line or, along z, a row of the points' lattice (mpm.points_per_element = {} puts {rows} rows in each element, every {} m)",
+                "a grid line or, along z, a row of the points' lattice (mpm.points_per_element = {} puts {rows} row{} in each element, every {} m)",
                 m.points_per_element,
+                if rows == 1 { "" } else { "s" },
                 tidy(h / rows as f64)
             );
             on_lines(v, key, a, value, what, h / rows as f64, &lines);

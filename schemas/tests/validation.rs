@@ -328,6 +328,28 @@ fn bad_mpm_values_name_their_key() {
         format!("fluids[0].region.max=[0.04, 0.05, {top}]"),
     ];
     assert!(load(&MPM, &[inside[0].as_str(), inside[1].as_str()]).is_ok());
+    // One point per element: one row, the lattice is the grid itself.
+    let e =
+        load(&MPM, &["mpm.points_per_element=1", "particles[0].packing.region.max=[0.04, 0.05, 0.061]"]).unwrap_err();
+    assert!(
+        e.names_key("particles[0].packing.region.max[2]")
+            && e.to_string().contains("puts 1 row in each element, every 0.004 m); the nearest are 0.06 and 0.064 m"),
+        "{e}"
+    );
+    // The implicit scheme's saturated layers have no explicit counterpart;
+    // left unset, the explicit scheme takes "free".
+    let e = load(&MPM, &["mpm.pressure_scheme=\"explicit\"", "mpm.surface_elements=\"hydrostatic\""]).unwrap_err();
+    assert!(
+        e.names_key("mpm.surface_elements")
+            && e.to_string().contains("set mpm.pressure_scheme = \"implicit\", or mpm.surface_elements = \"free\""),
+        "{e}"
+    );
+    let explicit = load(&MPM, &["mpm.pressure_scheme=\"explicit\""]).unwrap().mpm();
+    assert_eq!(explicit.surface_elements_in_effect(), schemas::scene::MpmSurfaceElements::Free);
+    assert_eq!(
+        load(&MPM, &[]).unwrap().mpm().surface_elements_in_effect(),
+        schemas::scene::MpmSurfaceElements::Hydrostatic
+    );
 }
 
 #[test]

@@ -302,27 +302,38 @@ fn numerics_warnings(scene: &Scene, ppe: usize, p: &mut Plan) {
     }
     // A liquid top inside an element: that element starts part-filled, its
     // filling ratio (the water's share of the space its grains leave) f n /
-    // (1 − f (1 − n)) for a filled share f of saturated soil (f alone above
-    // free water), and below `free_surface_fill` under `surface_elements =
-    // "free"` it is the free surface's: p = 0, and at rest its water sinks
+    // (1 − f (1 − n)) for a filled share f of saturated soil, f alone above
+    // free water or under soil that fills the element. Below
+    // `free_surface_fill` it is out of the pressure solve: at p = 0 under
+    // `surface_elements = "free"`, and at rest its water sinks
     // (docs/RESULTS.md, session 39). Under "hydrostatic" (the implicit
-    // scheme's default) its saturated layer keeps its pressure.
-    let free_surface_elements = m.surface_elements_in_effect() == MpmSurfaceElements::Free;
-    if let (Some(water), true) = (s.fluids.first(), free_surface_elements) {
+    // scheme's default) a saturated layer keeps its pressure, but water
+    // below the soil's top fills too little of that soil's pores and
+    // drains as before.
+    if let Some(water) = s.fluids.first() {
         let (h, top) = (m.element_size, water.region.max[2] - s.domain.min[2]);
         let filled = top / h - (top / h).floor();
-        if filled > 1e-6 && filled < 1.0 - 1e-6 {
-            let soil_top = s.particles.first().and_then(|p| match &p.packing {
-                PackingSpec::Deposit { region, porosity: Some(n), .. } => Some((region.max[2], *n)),
-                _ => None,
-            });
+        let soil_top = s.particles.first().and_then(|p| match &p.packing {
+            PackingSpec::Deposit { region, porosity: Some(n), .. } => Some((region.max[2], *n)),
+            _ => None,
+        });
+        let soil_above = soil_top.filter(|&(st, _)| st > water.region.max[2] + 1e-9);
+        let hydrostatic = m.surface_elements_in_effect() == MpmSurfaceElements::Hydrostatic;
+        if filled > 1e-6 && filled < 1.0 - 1e-6 && (!hydrostatic || soil_above.is_some()) {
             let fill = match soil_top {
                 Some((st, n)) if (st - water.region.max[2]).abs() < 1e-9 => filled * n / (1.0 - filled * (1.0 - n)),
                 _ => filled,
             };
+            let (why, other_fix) = match soil_above {
+                Some((st, _)) if hydrostatic => (format!(" under the soil's top z = {st} m"), ""),
+                _ => (
+                    " under mpm.surface_elements = \"free\"".to_string(),
+                    ", or use the implicit scheme's surface_elements = \"hydrostatic\"",
+                ),
+            };
             if fill < m.free_surface_fill {
                 p.warn(format!(
-                    "the liquid's top z = {} m lies inside an element ({filled:.2} of it below the top): that element starts {fill:.2} filled, below mpm.free_surface_fill = {}, so under mpm.surface_elements = \"free\" it is the free surface's (p = 0) and at rest its water sinks by about one point row (docs/RESULTS.md, session 39); put the top on a grid line, set mpm.free_surface_fill below {fill:.2}, or use the implicit scheme's surface_elements = \"hydrostatic\"",
+                    "the liquid's top z = {} m lies inside an element ({filled:.2} of it below the top){why}: that element starts {fill:.2} filled, below mpm.free_surface_fill = {}, so it is out of the pressure solve at p = 0 and at rest its water sinks by about one point row (docs/RESULTS.md, session 39); put the top on a grid line or set mpm.free_surface_fill below {fill:.2}{other_fix}",
                     water.region.max[2], m.free_surface_fill
                 ));
             }
