@@ -376,8 +376,9 @@ struct ElementScratch {
     /// edges.
     domain_volume: [Vec<f64>; 2],
     /// The solid points' pore volume V − m/ρ_s, shared by domain as
-    /// `domain_volume` (only with liquid): the space the soil's own
-    /// skeleton leaves, dilated or not, which its water should fill.
+    /// `domain_volume` (only with liquid, under
+    /// `Params::hydrostatic_surface`): the space the soil's own skeleton
+    /// leaves, dilated or not, which its water should fill.
     domain_pores: Vec<f64>,
     /// Volume-weighted moments of the pressured liquid points about the
     /// element's centre, offsets in elements: Σw, Σwξ, Σwζ, Σwξ², Σwξζ,
@@ -1015,17 +1016,17 @@ impl Mpm {
                     grain_volume[el] += m / params.solid_density;
                     solid_point_volume[el] += solid.set.volume[p];
                 }
-                // The grains' domains only enter the liquid's filling ratio
-                // and the soil's saturation.
+                // The grains' domains only enter the liquid's filling ratio,
+                // and their pores the saturated layers' rule.
                 if !liquid.is_empty() {
                     let rho = params.solid_density;
                     let set = &solid.set;
-                    Self::spread_over_domains(
-                        &grid,
-                        set,
-                        |p| [set.mass[p] / rho, set.volume[p] - set.mass[p] / rho],
-                        [domain_grains, domain_pores],
-                    );
+                    if params.hydrostatic_surface {
+                        let own = |p: usize| [set.mass[p] / rho, set.volume[p] - set.mass[p] / rho];
+                        Self::spread_over_domains(&grid, set, own, [domain_grains, domain_pores]);
+                    } else {
+                        Self::spread_over_domains(&grid, set, |p| [set.mass[p] / rho], [domain_grains]);
+                    }
                 }
                 span
             },
@@ -2170,12 +2171,13 @@ impl Mpm {
                     continue;
                 }
                 let saturation = el.filling_ratio(e, area);
-                let mut role = ElementRole::classify(true, saturation, p.free_surface_fill);
-                if role == ElementRole::Given(0.0) && p.hydrostatic_surface {
-                    if let Some(theta) = el.saturated_layer(e, area, p.free_surface_fill) {
-                        role = ElementRole::Given(surface_head * theta * theta);
-                    }
-                }
+                let role = match ElementRole::classify(true, saturation, p.free_surface_fill) {
+                    ElementRole::Given(_) if p.hydrostatic_surface => ElementRole::Given(
+                        el.saturated_layer(e, area, p.free_surface_fill)
+                            .map_or(0.0, |theta| surface_head * theta * theta),
+                    ),
+                    role => role,
+                };
                 let [w, wp, w_free, wp_free] = imp.reference[e];
                 let reference = if w > 0.0 {
                     wp / w
