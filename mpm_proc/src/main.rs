@@ -103,8 +103,9 @@ fn main() -> ExitCode {
                 let points = mpm.state.solid.set.len() + mpm.state.liquid.set.len();
                 let started = Instant::now();
                 // On a pool thread, so the stages' parallel loops start without
-                // a hand-off from (and a wake-up of) the main thread each time.
-                rayon::scope(|_| {
+                // a hand-off from (and a wake-up of) the main thread each time,
+                // the other workers kept awake between them.
+                runtime::process::with_workers_awake(|| {
                     for _ in 0..steps {
                         mpm.step();
                     }
@@ -149,7 +150,8 @@ fn main() -> ExitCode {
                         * column[1],
                 };
                 let mpm = &mut setup.mpm;
-                let windows = rayon::scope(|_| mpm_proc::probe::probe(mpm, &frame, &at, window)).map_err(fail)?;
+                let windows = runtime::process::with_workers_awake(|| mpm_proc::probe::probe(mpm, &frame, &at, window))
+                    .map_err(fail)?;
                 let label = format!("{} at h = {:.3} mm", spec.scene.name, mpm.grid.h * 1e3);
                 let pushes: Vec<_> = windows.iter().map(|(p, _)| p.clone()).collect();
                 say!("{}", mpm_proc::probe::markdown(&pushes, &frame, &label));

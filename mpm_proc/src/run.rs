@@ -212,8 +212,9 @@ pub fn run(
 ) -> Result<RunSummary, RunError> {
     // On a pool thread, so the stages' parallel loops start without a
     // hand-off from (and a wake-up of) the calling thread at each one: 2.5x
-    // on one thread, 1.3x on two (docs/BENCHMARKS.md).
-    rayon::scope(|_| run_on_pool(scene, opts, stop, progress))
+    // on one thread, 1.3x on two; and with the other workers kept awake
+    // between the loops (docs/BENCHMARKS.md, session 41).
+    runtime::process::with_workers_awake(|| run_on_pool(scene, opts, stop, progress))
 }
 
 /// An MPM run's checkpoint ([`Solver::checkpoint`]): the state, what the

@@ -17,7 +17,18 @@ pub const POROSITY_BOUNDS: (f64, f64) = (0.05, 0.99);
 /// Largest nodal solid fraction (docs/mpm.md, "Porosity fields").
 const MAX_SOLID_FRACTION: f64 = 0.95;
 /// Points per parallel work item: below this a stage is not worth splitting.
-const CHUNK: usize = 256;
+/// Small enough that a thread that runs out of work waits less than rayon's
+/// ~32 rounds before it sleeps: 256 made a leaf of the solid update ~15 µs
+/// and the waits slept, ~1 context switch a step (docs/BENCHMARKS.md,
+/// session 41: 64 against 256, 1.84-1.92 s against 2.11-2.15 s for 3000
+/// steps of the lab column on two threads; 32 no faster, 128 between).
+const CHUNK: usize = 64;
+/// Nodes per parallel work item of the node loops, over the touched range
+/// taken row after row. Rows were the items until session 41: a spread,
+/// low pile has few rows, most of its points in the bottom ones, and the
+/// map over them did not split (1.06x on two threads over the lab column's
+/// whole run).
+const NODE_CHUNK: usize = 32;
 
 /// Material and numerical parameters, SI.
 #[derive(Debug, Clone)]
@@ -1171,10 +1182,13 @@ impl Mpm {
         let row = self.grid.node_dims()[0];
         let (r0, r1) = self.rows;
         let (c0, c1) = self.columns;
-        out[r0 * row..(r1 + 1) * row].par_chunks_mut(row).enumerate().for_each(|(k, chunk)| {
-            let r = r0 + k;
-            for (c, slot) in chunk.iter_mut().enumerate().take(c1 + 1).skip(c0) {
-                f(r * row + c, slot);
+        let first = r0 * row + c0;
+        out[first..=r1 * row + c1].par_chunks_mut(NODE_CHUNK).enumerate().for_each(|(k, chunk)| {
+            let start = first + k * NODE_CHUNK;
+            for (node, slot) in (start..).zip(chunk) {
+                if (c0..=c1).contains(&(node % row)) {
+                    f(node, slot);
+                }
             }
         });
     }

@@ -334,3 +334,117 @@ pub fn finish_run(progress_json: bool, status: schemas::summary::RunStatus) -> s
         std::process::ExitCode::SUCCESS
     }
 }
+
+/// Runs `work` on the calling pool thread while every other worker of the
+/// pool stays awake, taking the parallel loops' chunks the moment they are
+/// pushed, instead of falling asleep between loops and being woken by a
+/// futex (and, on a virtual machine, by the hypervisor) at the next one.
+///
+/// Why: rayon parks an idle worker after ~32 rounds of looking for work,
+/// a few tens of µs. A step of many short parallel loops with serial work
+/// between them (the MPM's) then pays a wake-up per loop: 4.7 context
+/// switches a step on two threads, 2.4 with the workers kept awake here
+/// (docs/BENCHMARKS.md, sessions 40 and 41).
+///
+/// The waiting workers burn their cores until `work` returns, so use it
+/// only around a stepping loop that owns the pool, and only where the pool
+/// has no more threads than the machine has cores (otherwise a spinning
+/// waiter would take the core the caller needs; then `work` simply runs).
+/// A waiter that finds itself on the calling thread (the caller took it
+/// back from its own queue while waiting in a join) returns at once, so
+/// it can never stall `work`; the waiters stop when `work` returns or
+/// unwinds. With one thread, or called from outside the pool, `work`
+/// simply runs.
+pub fn with_workers_awake<R: Send>(work: impl FnOnce() -> R + Send) -> R {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    /// Sets the flag when dropped, so a panic in `work` still releases the waiters.
+    struct Release<'a>(&'a AtomicBool);
+    impl Drop for Release<'_> {
+        fn drop(&mut self) {
+            self.0.store(true, Ordering::Release);
+        }
+    }
+    let (Some(caller), threads) = (rayon::current_thread_index(), rayon::current_num_threads()) else {
+        return work();
+    };
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    if threads < 2 || threads > cores {
+        return work();
+    }
+    let done = AtomicBool::new(false);
+    rayon::scope(|scope| {
+        for _ in 1..threads {
+            scope.spawn(|_| {
+                if rayon::current_thread_index() == Some(caller) {
+                    return;
+                }
+                while !done.load(Ordering::Acquire) {
+                    if rayon::yield_now() != Some(rayon::Yield::Executed) {
+                        std::hint::spin_loop();
+                    }
+                }
+            });
+        }
+        let _release = Release(&done);
+        work()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::with_workers_awake;
+    use rayon::prelude::*;
+
+    fn pool(threads: usize) -> rayon::ThreadPool {
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a pool")
+    }
+
+    /// Σ i² for i < n, exactly: n(n−1)(2n−1)/6.
+    fn squares(n: u64) -> u64 {
+        n * (n - 1) * (2 * n - 1) / 6
+    }
+
+    #[test]
+    fn parallel_loops_inside_give_the_exact_sums_and_return() {
+        for threads in [1, 2] {
+            let sums = pool(threads).install(|| {
+                with_workers_awake(|| {
+                    // Many short loops with serial work between them: the
+                    // pattern the waiters are kept awake for.
+                    (1..200u64)
+                        .map(|n| {
+                            (0..(n * 50) as u32)
+                                .into_par_iter()
+                                .with_min_len(16)
+                                .map(|i| u64::from(i).pow(2))
+                                .sum::<u64>()
+                        })
+                        .collect::<Vec<_>>()
+                })
+            });
+            for (k, s) in sums.iter().enumerate() {
+                assert_eq!(*s, squares((k as u64 + 1) * 50), "{threads} threads, loop {k}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_panic_inside_reaches_the_caller_instead_of_hanging_the_waiters() {
+        let caught = pool(2).install(|| {
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                with_workers_awake(|| {
+                    let _ = (0..1000u64).into_par_iter().sum::<u64>();
+                    panic!("the step failed");
+                })
+            }))
+        });
+        let message = caught.expect_err("the panic comes back");
+        assert_eq!(message.downcast_ref::<&str>(), Some(&"the step failed"));
+    }
+
+    #[test]
+    fn outside_a_pool_the_work_simply_runs() {
+        let here = std::thread::spawn(|| with_workers_awake(|| squares(1000))).join().expect("runs");
+        assert_eq!(here, 332_833_500);
+    }
+}
