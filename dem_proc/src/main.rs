@@ -119,7 +119,9 @@ fn main() -> ExitCode {
                 set_global_threads("dem_proc", threads)?;
                 let mut w = collapse_world(&scene)?;
                 let started = Instant::now();
+                let awake = runtime::process::AwakeWorkers::new();
                 for _ in 0..steps {
+                    awake.keep_awake();
                     w.step();
                 }
                 let seconds = started.elapsed().as_secs_f64();

@@ -127,7 +127,9 @@ fn scene_mlups_stored_as<T: Real>(scene: &Scene, steps: u64) -> Result<f64, Stri
     }
     let started = Instant::now();
     let mut updates = 0.0;
+    let awake = runtime::process::AwakeWorkers::new();
     for _ in 0..steps {
+        awake.keep_awake();
         updates += fluid.active_cells() as f64;
         fluid.step();
     }

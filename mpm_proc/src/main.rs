@@ -105,8 +105,10 @@ fn main() -> ExitCode {
                 // On a pool thread, so the stages' parallel loops start without
                 // a hand-off from (and a wake-up of) the main thread each time,
                 // the other workers kept awake between them.
-                runtime::process::with_workers_awake(|| {
+                rayon::scope(|_| {
+                    let awake = runtime::process::AwakeWorkers::new();
                     for _ in 0..steps {
+                        awake.keep_awake();
                         mpm.step();
                     }
                 });
@@ -150,8 +152,7 @@ fn main() -> ExitCode {
                         * column[1],
                 };
                 let mpm = &mut setup.mpm;
-                let windows = runtime::process::with_workers_awake(|| mpm_proc::probe::probe(mpm, &frame, &at, window))
-                    .map_err(fail)?;
+                let windows = rayon::scope(|_| mpm_proc::probe::probe(mpm, &frame, &at, window)).map_err(fail)?;
                 let label = format!("{} at h = {:.3} mm", spec.scene.name, mpm.grid.h * 1e3);
                 let pushes: Vec<_> = windows.iter().map(|(p, _)| p.clone()).collect();
                 say!("{}", mpm_proc::probe::markdown(&pushes, &frame, &label));

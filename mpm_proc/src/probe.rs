@@ -187,13 +187,16 @@ pub fn probe(
     }
     let mut out = Vec::with_capacity(windows.len());
     let half_step = |mpm: &Mpm| 0.5 * mpm.params.dt;
+    let awake = runtime::process::AwakeWorkers::new();
     for window in windows {
         while mpm.state.time + half_step(mpm) < window[0] * frame.t_ref {
+            awake.keep_awake();
             mpm.step();
         }
         mpm.start_liquid_force_field();
         mpm.take_liquid_impulse();
         while mpm.state.time + half_step(mpm) < window[1] * frame.t_ref {
+            awake.keep_awake();
             mpm.step();
         }
         let impulse = mpm.take_liquid_impulse();

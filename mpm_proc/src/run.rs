@@ -105,7 +105,9 @@ pub fn gravity_phase(scene: &Scene, mpm: &mut Mpm, stop: &AtomicBool, progress: 
     mpm.params.gravity = [g[0], g[2]];
     let check_every = ((0.002 / mpm.params.dt).round() as u64).max(1);
     let mut last_progress = Instant::now();
+    let awake = runtime::process::AwakeWorkers::new();
     loop {
+        awake.keep_awake();
         mpm.step();
         phase.steps += 1;
         if phase.steps.is_multiple_of(check_every) {
@@ -212,9 +214,9 @@ pub fn run(
 ) -> Result<RunSummary, RunError> {
     // On a pool thread, so the stages' parallel loops start without a
     // hand-off from (and a wake-up of) the calling thread at each one: 2.5x
-    // on one thread, 1.3x on two; and with the other workers kept awake
-    // between the loops (docs/BENCHMARKS.md, session 41).
-    runtime::process::with_workers_awake(|| run_on_pool(scene, opts, stop, progress))
+    // on one thread, 1.3x on two (docs/BENCHMARKS.md). The driver keeps the
+    // other workers awake between the loops.
+    rayon::scope(|_| run_on_pool(scene, opts, stop, progress))
 }
 
 /// An MPM run's checkpoint ([`Solver::checkpoint`]): the state, what the

@@ -360,7 +360,9 @@ pub fn drive<'x, S: Solver>(
     // At once, not after the first half second: a supervisor learns that
     // the run loop (and its recording) has begun.
     progress(solver.time(), solver.steps());
+    let awake = crate::process::AwakeWorkers::new();
     while solver.steps() < cadence.step_limit {
+        awake.keep_awake();
         let step_work = solver.work_per_step();
         match step_once(solver, exchange.as_deref_mut(), rec) {
             Ok(Flow::Continue) => work += step_work,

@@ -335,64 +335,119 @@ pub fn finish_run(progress_json: bool, status: schemas::summary::RunStatus) -> s
     }
 }
 
-/// Runs `work` on the calling pool thread while every other worker of the
-/// pool stays awake, taking the parallel loops' chunks the moment they are
-/// pushed, instead of falling asleep between loops and being woken by a
-/// futex (and, on a virtual machine, by the hypervisor) at the next one.
+/// How long a kept-awake worker goes on looking for work after its last
+/// job before it gives its core back: longer than the serial stretches
+/// inside a step (the MPM's pressure solve, ~0.1 ms), shorter than a
+/// coupled process's wait for its peer (tens of ms), so that a process
+/// waiting on the exchange does not hold the core its peer steps on.
+pub const AWAKE_IDLE_LIMIT: std::time::Duration = std::time::Duration::from_micros(500);
+
+/// Keeps the other workers of the calling thread's pool awake while a
+/// stepping loop runs: each spins, taking the parallel loops' chunks the
+/// moment they are pushed, instead of falling asleep between loops and
+/// being woken by a futex (and, on a virtual machine, by the hypervisor)
+/// at the next one. Call [`AwakeWorkers::keep_awake`] at each step.
 ///
 /// Why: rayon parks an idle worker after ~32 rounds of looking for work,
 /// a few tens of µs. A step of many short parallel loops with serial work
-/// between them (the MPM's) then pays a wake-up per loop: 4.7 context
-/// switches a step on two threads, 2.4 with the workers kept awake here
-/// (docs/BENCHMARKS.md, sessions 40 and 41).
+/// between them then pays a wake-up per loop: the MPM made 4.7 context
+/// switches a step on two threads (docs/BENCHMARKS.md, sessions 40–41).
 ///
-/// The waiting workers burn their cores until `work` returns, so use it
-/// only around a stepping loop that owns the pool, and only where the pool
-/// has no more threads than the machine has cores (otherwise a spinning
-/// waiter would take the core the caller needs; then `work` simply runs).
-/// A waiter that finds itself on the calling thread (the caller took it
-/// back from its own queue while waiting in a join) returns at once, so
-/// it can never stall `work`; the waiters stop when `work` returns or
-/// unwinds. With one thread, or called from outside the pool, `work`
-/// simply runs.
-pub fn with_workers_awake<R: Send>(work: impl FnOnce() -> R + Send) -> R {
-    use std::sync::atomic::{AtomicBool, Ordering};
-    /// Sets the flag when dropped, so a panic in `work` still releases the waiters.
-    struct Release<'a>(&'a AtomicBool);
-    impl Drop for Release<'_> {
-        fn drop(&mut self) {
-            self.0.store(true, Ordering::Release);
-        }
+/// A waiter burns its core while it spins, so it stops once it has found
+/// no work for [`AWAKE_IDLE_LIMIT`] (a run writing its recording, a
+/// coupled process waiting for its peer) and the next `keep_awake` starts
+/// it again. Nothing is kept awake with one thread, from outside a pool,
+/// or where the pool has more threads than the machine has cores (a
+/// spinning waiter would take the core the stepping thread needs). A
+/// waiter that lands on the stepping thread itself (taken back from the
+/// queue while that thread waits in a join) returns at once, so it can
+/// never stall the step. Dropping the keeper stops the waiters.
+pub struct AwakeWorkers {
+    shared: std::sync::Arc<AwakeShared>,
+    caller: usize,
+    waiters: usize,
+}
+
+#[derive(Default)]
+struct AwakeShared {
+    live: std::sync::atomic::AtomicUsize,
+    stop: std::sync::atomic::AtomicBool,
+}
+
+impl AwakeWorkers {
+    /// A keeper for the pool of the calling thread (none kept awake where
+    /// the rules above say so).
+    pub fn new() -> Self {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let threads = rayon::current_num_threads();
+        let (caller, waiters) = match rayon::current_thread_index() {
+            Some(caller) if threads <= cores => (caller, threads - 1),
+            _ => (0, 0),
+        };
+        Self { shared: Default::default(), caller, waiters }
     }
-    let (Some(caller), threads) = (rayon::current_thread_index(), rayon::current_num_threads()) else {
-        return work();
-    };
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    if threads < 2 || threads > cores {
-        return work();
+
+    /// How many workers this keeper keeps awake (0: none).
+    pub fn waiters(&self) -> usize {
+        self.waiters
     }
-    let done = AtomicBool::new(false);
-    rayon::scope(|scope| {
-        for _ in 1..threads {
-            scope.spawn(|_| {
-                if rayon::current_thread_index() == Some(caller) {
-                    return;
+
+    /// Starts again any waiter that has stopped. One atomic load when all
+    /// are awake.
+    pub fn keep_awake(&self) {
+        use std::sync::atomic::Ordering;
+        while self.shared.live.load(Ordering::Acquire) < self.waiters {
+            self.shared.live.fetch_add(1, Ordering::AcqRel);
+            let (shared, caller) = (self.shared.clone(), self.caller);
+            rayon::spawn(move || {
+                if rayon::current_thread_index() != Some(caller) {
+                    shared.wait_for_work();
                 }
-                while !done.load(Ordering::Acquire) {
-                    if rayon::yield_now() != Some(rayon::Yield::Executed) {
-                        std::hint::spin_loop();
-                    }
-                }
+                shared.live.fetch_sub(1, Ordering::AcqRel);
             });
         }
-        let _release = Release(&done);
-        work()
-    })
+    }
+}
+
+impl Default for AwakeWorkers {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Drop for AwakeWorkers {
+    fn drop(&mut self) {
+        self.shared.stop.store(true, std::sync::atomic::Ordering::Release);
+    }
+}
+
+impl AwakeShared {
+    /// Runs the pool's pending jobs as they come until stopped or idle for
+    /// [`AWAKE_IDLE_LIMIT`].
+    fn wait_for_work(&self) {
+        use std::sync::atomic::Ordering;
+        let mut idle_since: Option<std::time::Instant> = None;
+        let mut rounds = 0u32;
+        while !self.stop.load(Ordering::Acquire) {
+            if rayon::yield_now() == Some(rayon::Yield::Executed) {
+                idle_since = None;
+                continue;
+            }
+            std::hint::spin_loop();
+            rounds = rounds.wrapping_add(1);
+            // The clock only every 64 idle rounds: it costs more than a round.
+            if rounds.is_multiple_of(64)
+                && idle_since.get_or_insert_with(std::time::Instant::now).elapsed() > AWAKE_IDLE_LIMIT
+            {
+                return;
+            }
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::with_workers_awake;
+    use super::{AwakeWorkers, AWAKE_IDLE_LIMIT};
     use rayon::prelude::*;
 
     fn pool(threads: usize) -> rayon::ThreadPool {
@@ -404,24 +459,26 @@ mod tests {
         n * (n - 1) * (2 * n - 1) / 6
     }
 
+    /// Many short parallel loops with serial work between them, the
+    /// pattern the waiters are kept awake for: each loop's exact sum.
+    fn loops(awake: &AwakeWorkers) -> Vec<u64> {
+        (1..200u64)
+            .map(|n| {
+                awake.keep_awake();
+                (0..(n * 50) as u32).into_par_iter().with_min_len(16).map(|i| u64::from(i).pow(2)).sum::<u64>()
+            })
+            .collect()
+    }
+
     #[test]
-    fn parallel_loops_inside_give_the_exact_sums_and_return() {
+    fn parallel_loops_kept_awake_give_the_exact_sums() {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         for threads in [1, 2] {
-            let sums = pool(threads).install(|| {
-                with_workers_awake(|| {
-                    // Many short loops with serial work between them: the
-                    // pattern the waiters are kept awake for.
-                    (1..200u64)
-                        .map(|n| {
-                            (0..(n * 50) as u32)
-                                .into_par_iter()
-                                .with_min_len(16)
-                                .map(|i| u64::from(i).pow(2))
-                                .sum::<u64>()
-                        })
-                        .collect::<Vec<_>>()
-                })
+            let (sums, waiters) = pool(threads).install(|| {
+                let awake = AwakeWorkers::new();
+                (loops(&awake), awake.waiters())
             });
+            assert_eq!(waiters, if threads <= cores { threads - 1 } else { 0 }, "{threads} threads");
             for (k, s) in sums.iter().enumerate() {
                 assert_eq!(*s, squares((k as u64 + 1) * 50), "{threads} threads, loop {k}");
             }
@@ -429,22 +486,29 @@ mod tests {
     }
 
     #[test]
-    fn a_panic_inside_reaches_the_caller_instead_of_hanging_the_waiters() {
-        let caught = pool(2).install(|| {
-            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                with_workers_awake(|| {
-                    let _ = (0..1000u64).into_par_iter().sum::<u64>();
-                    panic!("the step failed");
-                })
-            }))
+    fn idle_waiters_give_their_cores_back_and_start_again() {
+        let pool = pool(2);
+        pool.install(|| {
+            let awake = AwakeWorkers::new();
+            if awake.waiters() == 0 {
+                return; // a one-core machine keeps nothing awake
+            }
+            awake.keep_awake();
+            // A pause far past the limit, as a coupled process waiting for its peer.
+            // Polled, for a machine busy with other tests: the waiter may start late.
+            let given_back = (0..2000).any(|_| {
+                std::thread::sleep(AWAKE_IDLE_LIMIT * 2);
+                awake.shared.live.load(std::sync::atomic::Ordering::Acquire) == 0
+            });
+            assert!(given_back, "the idle waiter stopped");
+            let sums = loops(&awake);
+            assert_eq!(sums[198], squares(199 * 50));
         });
-        let message = caught.expect_err("the panic comes back");
-        assert_eq!(message.downcast_ref::<&str>(), Some(&"the step failed"));
     }
 
     #[test]
-    fn outside_a_pool_the_work_simply_runs() {
-        let here = std::thread::spawn(|| with_workers_awake(|| squares(1000))).join().expect("runs");
-        assert_eq!(here, 332_833_500);
+    fn outside_a_pool_nothing_is_kept_awake() {
+        let waiters = std::thread::spawn(|| AwakeWorkers::new().waiters()).join().expect("runs");
+        assert_eq!(waiters, 0);
     }
 }
