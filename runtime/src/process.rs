@@ -338,8 +338,10 @@ pub fn finish_run(progress_json: bool, status: schemas::summary::RunStatus) -> s
 /// How long a kept-awake worker goes on looking for work after its last
 /// job before it gives its core back: longer than the serial stretches
 /// inside a step (the MPM's pressure solve, ~0.1 ms), shorter than a
-/// coupled process's wait for its peer (tens of ms), so that a process
-/// waiting on the exchange does not hold the core its peer steps on.
+/// coupled process's wait for its peer (an exchange's 57 DEM steps take
+/// ~50 ms, an LBM step ~30 ms: docs/BENCHMARKS.md), so that a process
+/// waiting on the exchange holds the core its peer steps on for at most
+/// this long after each hand-over.
 pub const AWAKE_IDLE_LIMIT: std::time::Duration = std::time::Duration::from_micros(500);
 
 /// Keeps the other workers of the calling thread's pool awake while a
@@ -358,20 +360,35 @@ pub const AWAKE_IDLE_LIMIT: std::time::Duration = std::time::Duration::from_micr
 /// coupled process waiting for its peer) and the next `keep_awake` starts
 /// it again. Nothing is kept awake with one thread, from outside a pool,
 /// or where the pool has more threads than the machine has cores (a
-/// spinning waiter would take the core the stepping thread needs). A
-/// waiter that lands on the stepping thread itself (taken back from the
-/// queue while that thread waits in a join) returns at once, so it can
-/// never stall the step. Dropping the keeper stops the waiters.
+/// spinning waiter would take the core the stepping thread needs).
+///
+/// A waiter never holds up a step. `keep_awake` runs between steps, when
+/// the pool has no work pending, so the waiters are the oldest jobs in the
+/// stepping thread's queue and thieves take them before any of the step's
+/// own jobs. A waiter that runs on the stepping thread itself (taken back
+/// from its queue while it waits in a join), or inside another waiter (one
+/// spinning worker taking the next waiter as pending work, with three or
+/// more threads), returns at once. Dropping the keeper stops the waiters.
+/// It stays on the thread that made it (`!Send`): its waiters are spawned
+/// into that thread's pool.
 pub struct AwakeWorkers {
     shared: std::sync::Arc<AwakeShared>,
     caller: usize,
     waiters: usize,
+    on_its_thread: std::marker::PhantomData<*const ()>,
 }
 
 #[derive(Default)]
 struct AwakeShared {
     live: std::sync::atomic::AtomicUsize,
     stop: std::sync::atomic::AtomicBool,
+    /// Waiters that started spinning, over the keeper's life.
+    started: std::sync::atomic::AtomicUsize,
+}
+
+thread_local! {
+    /// Whether this thread is running a waiter (a waiter inside it returns at once).
+    static IN_WAITER: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
 }
 
 impl AwakeWorkers {
@@ -384,12 +401,17 @@ impl AwakeWorkers {
             Some(caller) if threads <= cores => (caller, threads - 1),
             _ => (0, 0),
         };
-        Self { shared: Default::default(), caller, waiters }
+        Self { shared: Default::default(), caller, waiters, on_its_thread: std::marker::PhantomData }
     }
 
     /// How many workers this keeper keeps awake (0: none).
     pub fn waiters(&self) -> usize {
         self.waiters
+    }
+
+    /// How many times a waiter has started spinning so far.
+    pub fn waiters_started(&self) -> usize {
+        self.shared.started.load(std::sync::atomic::Ordering::Acquire)
     }
 
     /// Starts again any waiter that has stopped. One atomic load when all
@@ -400,8 +422,11 @@ impl AwakeWorkers {
             self.shared.live.fetch_add(1, Ordering::AcqRel);
             let (shared, caller) = (self.shared.clone(), self.caller);
             rayon::spawn(move || {
-                if rayon::current_thread_index() != Some(caller) {
+                if rayon::current_thread_index() != Some(caller) && !IN_WAITER.get() {
+                    IN_WAITER.set(true);
+                    shared.started.fetch_add(1, Ordering::AcqRel);
                     shared.wait_for_work();
+                    IN_WAITER.set(false);
                 }
                 shared.live.fetch_sub(1, Ordering::AcqRel);
             });
@@ -473,7 +498,7 @@ mod tests {
     #[test]
     fn parallel_loops_kept_awake_give_the_exact_sums() {
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-        for threads in [1, 2] {
+        for threads in [1, 2, 3] {
             let (sums, waiters) = pool(threads).install(|| {
                 let awake = AwakeWorkers::new();
                 (loops(&awake), awake.waiters())
@@ -485,24 +510,61 @@ mod tests {
         }
     }
 
+    /// Polls (for a machine busy with other tests) until no waiter is live.
+    fn until_none_live(awake: &AwakeWorkers) {
+        let given_back = (0..4000).any(|_| {
+            std::thread::sleep(AWAKE_IDLE_LIMIT / 5);
+            awake.shared.live.load(std::sync::atomic::Ordering::Acquire) == 0
+        });
+        assert!(given_back, "the waiters stopped");
+    }
+
     #[test]
-    fn idle_waiters_give_their_cores_back_and_start_again() {
-        let pool = pool(2);
-        pool.install(|| {
+    fn idle_waiters_give_their_cores_back_after_the_limit_and_start_again() {
+        pool(2).install(|| {
             let awake = AwakeWorkers::new();
             if awake.waiters() == 0 {
                 return; // a one-core machine keeps nothing awake
             }
+            let since = std::time::Instant::now();
             awake.keep_awake();
-            // A pause far past the limit, as a coupled process waiting for its peer.
-            // Polled, for a machine busy with other tests: the waiter may start late.
-            let given_back = (0..2000).any(|_| {
-                std::thread::sleep(AWAKE_IDLE_LIMIT * 2);
-                awake.shared.live.load(std::sync::atomic::Ordering::Acquire) == 0
-            });
-            assert!(given_back, "the idle waiter stopped");
+            while awake.waiters_started() == 0 {
+                std::hint::spin_loop();
+            }
+            // A pause past the limit, as a coupled process waiting for its
+            // peer: the waiter, started after `since`, spins at least the
+            // limit, then stops.
+            until_none_live(&awake);
+            assert!(since.elapsed() >= AWAKE_IDLE_LIMIT, "a waiter spins for the limit before it stops");
             let sums = loops(&awake);
             assert_eq!(sums[198], squares(199 * 50));
+            let restarted = std::time::Instant::now();
+            while awake.waiters_started() < 2 && restarted.elapsed() < std::time::Duration::from_secs(5) {
+                awake.keep_awake();
+                std::thread::sleep(AWAKE_IDLE_LIMIT / 5);
+            }
+            assert!(awake.waiters_started() >= 2, "the next step started it again");
+        });
+    }
+
+    #[test]
+    fn dropping_the_keeper_stops_its_waiters() {
+        pool(2).install(|| {
+            let awake = AwakeWorkers::new();
+            if awake.waiters() == 0 {
+                return;
+            }
+            let shared = awake.shared.clone();
+            awake.keep_awake();
+            while awake.waiters_started() == 0 {
+                std::hint::spin_loop();
+            }
+            drop(awake);
+            let stopped = (0..4000).any(|_| {
+                std::thread::sleep(AWAKE_IDLE_LIMIT / 5);
+                shared.live.load(std::sync::atomic::Ordering::Acquire) == 0
+            });
+            assert!(stopped && shared.stop.load(std::sync::atomic::Ordering::Acquire));
         });
     }
 
