@@ -360,9 +360,13 @@ pub fn drive<'x, S: Solver>(
     // At once, not after the first half second: a supervisor learns that
     // the run loop (and its recording) has begun.
     progress(solver.time(), solver.steps());
-    let awake = crate::process::AwakeWorkers::new();
+    // Only a run alone: a coupled process's waiter, spinning on after its
+    // turn, took 5-6 % from the peer's (docs/BENCHMARKS.md, session 41).
+    let awake = exchange.is_none().then(crate::process::AwakeWorkers::new);
     while solver.steps() < cadence.step_limit {
-        awake.keep_awake();
+        if let Some(awake) = &awake {
+            awake.keep_awake();
+        }
         let step_work = solver.work_per_step();
         match step_once(solver, exchange.as_deref_mut(), rec) {
             Ok(Flow::Continue) => work += step_work,
