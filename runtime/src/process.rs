@@ -339,9 +339,9 @@ pub fn finish_run(progress_json: bool, status: schemas::summary::RunStatus) -> s
 /// job before it gives its core back: longer than the serial stretches
 /// inside a step (the MPM's pressure solve, ~0.1 ms), shorter than a
 /// coupled process's wait for its peer (an exchange's 57 DEM steps take
-/// ~50 ms, an LBM step ~30 ms: docs/BENCHMARKS.md), so that a process
-/// waiting on the exchange holds the core its peer steps on for at most
-/// this long after each hand-over.
+/// ~50 ms, an LBM step ~30 ms: docs/BENCHMARKS.md). Even so, coupled
+/// processes that kept their workers awake lost 5-6 %, so the run driver
+/// keeps them awake only in a run alone.
 pub const AWAKE_IDLE_LIMIT: std::time::Duration = std::time::Duration::from_micros(500);
 
 /// Keeps the other workers of the calling thread's pool awake while a
@@ -356,9 +356,10 @@ pub const AWAKE_IDLE_LIMIT: std::time::Duration = std::time::Duration::from_micr
 /// switches a step on two threads (docs/BENCHMARKS.md, sessions 40–41).
 ///
 /// A waiter burns its core while it spins, so it stops once it has found
-/// no work for [`AWAKE_IDLE_LIMIT`] (a run writing its recording, a
-/// coupled process waiting for its peer) and the next `keep_awake` starts
-/// it again. Nothing is kept awake with one thread, from outside a pool,
+/// no work for [`AWAKE_IDLE_LIMIT`] (a run writing its recording) and the
+/// next `keep_awake` starts it again. The run driver does not use it in a
+/// coupled process: there the peer steps on the core a waiter would spin
+/// on, and it cost 5-6 % (docs/BENCHMARKS.md, session 41). Nothing is kept awake with one thread, from outside a pool,
 /// or where the pool has more threads than the machine has cores (a
 /// spinning waiter would take the core the stepping thread needs).
 ///
