@@ -38,7 +38,7 @@
 use rayon::prelude::*;
 use runtime::isa::Isa;
 
-use crate::memory::{release_zeros, sparse_zeroed};
+use crate::memory::{release_zero_pages, release_zeros, sparse_zeroed, sparse_zeroed_bytes};
 use schemas::scene::ForcingGain;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -64,23 +64,57 @@ use kernel::*;
 pub use layout::{Layout, SEGMENT};
 pub(crate) use stored::DenseV1;
 
-/// Cell flags. Liquid cells (fluid, interface) have bit 0 clear, so the
-/// kernel tells "pull from here" from "bounce back" with one bit test.
+/// Cell flags. Liquid cells (fluid, interface) have bit 0 set, so the
+/// kernel tells "pull from here" from "bounce back" with one bit test, and
+/// gas is 0, so that the flags of a box's gas are memory never written
+/// (`memory.rs`): a flume's flags cost memory only where the liquid has
+/// been, like its populations.
+///
+/// These are the values in memory. A stored or recorded state keeps the
+/// codes it has always had (0 fluid, 1 wall, 2 interface, 3 gas:
+/// [`flags::to_stored`], [`flags::from_stored`]).
 pub mod flags {
+    /// An empty cell: stores nothing meaningful and is never computed.
+    pub const GAS: u8 = 0;
     /// A liquid cell: collides and streams.
-    pub const FLUID: u8 = 0;
+    pub const FLUID: u8 = 1;
     /// A no-slip obstacle: links into it bounce back half-way.
-    pub const WALL: u8 = 1;
+    pub const WALL: u8 = 2;
     /// A partly filled cell of the free surface: collides and streams, and
     /// tracks its liquid mass m; populations pulled from gas are rebuilt.
-    pub const INTERFACE: u8 = 2;
-    /// An empty cell: stores nothing meaningful and is never computed.
-    pub const GAS: u8 = 3;
+    pub const INTERFACE: u8 = 3;
 
     /// Fluid or interface: the cells that collide, stream and hold liquid.
     #[inline(always)]
     pub fn is_liquid(flag: u8) -> bool {
-        flag & 1 == 0
+        flag & 1 == 1
+    }
+
+    /// One of the four flags above (and not a mark of a conversion).
+    pub fn is_known(flag: u8) -> bool {
+        flag <= INTERFACE
+    }
+
+    /// The code of `flag` in a stored or recorded state (docs/recording.md).
+    pub fn to_stored(flag: u8) -> u8 {
+        match flag {
+            FLUID => 0,
+            WALL => 1,
+            INTERFACE => 2,
+            GAS => 3,
+            other => other,
+        }
+    }
+
+    /// The flag of a stored code, `None` for an unknown one.
+    pub fn from_stored(code: u8) -> Option<u8> {
+        match code {
+            0 => Some(FLUID),
+            1 => Some(WALL),
+            2 => Some(INTERFACE),
+            3 => Some(GAS),
+            _ => None,
+        }
     }
 }
 
@@ -339,6 +373,15 @@ struct Coefficients<T> {
     accel: [T; 3],
 }
 
+/// Stores `v` in `slot` unless it holds those bits already (compared bit
+/// for bit: -0 is not +0), so that memory never written stays unbacked
+/// (`memory.rs`).
+fn write_if_changed(slot: &mut f64, v: f64) {
+    if slot.to_bits() != v.to_bits() {
+        *slot = v;
+    }
+}
+
 impl<T: Real> Fluid<T> {
     /// A box of fluid cells at rest (u = 0 under the body force), ρ = 1.
     pub fn new(dims: [usize; 3], faces: [Faces; 3], params: FluidParams) -> Result<Self, ConfigError> {
@@ -375,7 +418,7 @@ impl<T: Real> Fluid<T> {
         Ok(FluidState {
             dims,
             faces,
-            flags: vec![flag; ncells],
+            flags: if flag == flags::GAS { sparse_zeroed_bytes(ncells) } else { vec![flag; ncells] },
             populations: sparse_zeroed(Layout::new(dims).len()),
             mass: sparse_zeroed(ncells),
             pending_excess: 0.0,
@@ -411,7 +454,7 @@ impl<T: Real> Fluid<T> {
                 state.mass.len()
             )));
         }
-        if let Some(c) = state.flags.iter().position(|&f| f > flags::GAS) {
+        if let Some(c) = state.flags.iter().position(|&f| !flags::is_known(f)) {
             return Err(ConfigError::State(format!("cell index {c} has unknown flag {}", state.flags[c])));
         }
         if !state.pending_excess.is_finite() || state.mass.iter().any(|m| !m.is_finite()) {
@@ -529,13 +572,15 @@ impl<T: Real> Fluid<T> {
             self.scratch.fluid_count -= 1;
         }
         self.state.flags[c] = flag;
-        self.state.mass[c] = 0.0;
+        // Zeros are written only over values that are not: a gate's wall
+        // cells above the liquid keep their masses' memory unbacked.
+        write_if_changed(&mut self.state.mass[c], 0.0);
         self.scratch.rows_stale = true;
         if flag == flags::FLUID {
             self.scratch.fluid_count += 1;
             self.scratch.fill[c] = 1.0;
         } else {
-            self.scratch.fill[c] = 0.0;
+            write_if_changed(&mut self.scratch.fill[c], 0.0);
             // The step never writes non-liquid cells; keeping them equal in
             // both lattices makes the state independent of the step parity.
             self.write_cell(c, &[0.0; Q]);
@@ -833,8 +878,9 @@ impl<T: Real> Fluid<T> {
     /// lattices): a segment the liquid has left holds only zeros (gas and
     /// wall cells hold 0), so its whole pages are handed back and read as
     /// zeros again ([`crate::memory::release_zeros`]); pages shared with a
-    /// segment that has liquid stay. Changes no value: a run that releases
-    /// and one that does not compute the same bits. Runs by itself every
+    /// segment that has liquid stay. So do the whole pages of flags that
+    /// are all gas (0). Changes no value: a run that releases and one that
+    /// does not compute the same bits. Runs by itself every
     /// [`RELEASE_EVERY`] steps.
     pub fn release_dry_memory(&mut self) {
         let layout = self.state.layout();
@@ -860,6 +906,7 @@ impl<T: Real> Fluid<T> {
             release_zeros(&mut self.state.populations, elements.clone());
             release_zeros(&mut self.scratch.next, elements);
         }
+        release_zero_pages(&mut self.state.flags);
     }
 
     /// Recomputes the row classes after flags changed.

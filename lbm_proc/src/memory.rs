@@ -28,6 +28,14 @@ pub fn sparse_zeroed<T: Real>(len: usize) -> Vec<T> {
     v
 }
 
+/// `len` zero bytes whose pages are backed only once written: the flags,
+/// whose gas is 0 (`fluid::flags`).
+pub fn sparse_zeroed_bytes(len: usize) -> Vec<u8> {
+    let v = vec![0u8; len];
+    no_huge_pages(v.as_ptr(), len);
+    v
+}
+
 /// Asks for normal pages under `len` bytes from `ptr` (untouched pages only).
 fn no_huge_pages(ptr: *const u8, len: usize) {
     if len < ADVISE_FROM_BYTES {
@@ -73,6 +81,46 @@ pub fn release_zeros<T: Real>(values: &mut [T], range: std::ops::Range<usize>) {
             unsafe { libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_DONTNEED) };
         }
     }
+    #[cfg(not(target_os = "linux"))]
+    let _ = values;
+}
+
+/// Gives back the whole pages of `values` that hold only zero bytes: the
+/// flags of cells that are gas again, e.g. where a gate stood
+/// (`fluid::flags`). Changes no value. Elsewhere than Linux: nothing.
+pub fn release_zero_pages(values: &mut [u8]) {
+    const PAGE: usize = 4096;
+    let ptr = values.as_ptr() as usize;
+    let first = ptr.next_multiple_of(PAGE) - ptr;
+    let mut run: Option<usize> = None;
+    let mut at = first;
+    while at + PAGE <= values.len() {
+        let zero = values[at..at + PAGE].iter().all(|&b| b == 0);
+        match (zero, run) {
+            (true, None) => run = Some(at),
+            (false, Some(start)) => {
+                release_zeros_bytes(&mut values[start..at]);
+                run = None;
+            }
+            _ => {}
+        }
+        at += PAGE;
+    }
+    if let Some(start) = run {
+        release_zeros_bytes(&mut values[start..at]);
+    }
+}
+
+/// [`release_zeros`] for whole pages of bytes. Pre: all zero, page-aligned.
+fn release_zeros_bytes(values: &mut [u8]) {
+    debug_assert!(values.iter().all(|&b| b == 0), "release_zeros_bytes over non-zero bytes");
+    #[cfg(target_os = "linux")]
+    // SAFETY: whole pages inside one live allocation that this function
+    // borrows mutably; MADV_DONTNEED on private anonymous memory makes them
+    // read as zeros, which they hold already.
+    unsafe {
+        libc::madvise(values.as_mut_ptr() as *mut libc::c_void, values.len(), libc::MADV_DONTNEED)
+    };
     #[cfg(not(target_os = "linux"))]
     let _ = values;
 }

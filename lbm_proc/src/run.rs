@@ -937,6 +937,8 @@ mod state_layout_tests {
         let ncells = s.flags.len();
         let dense: Vec<f32> =
             (0..crate::lattice::Q).flat_map(|i| (0..ncells).map(move |c| s.population(i, c))).collect();
+        // Version 1 stored the flags' codes (docs/recording.md), not the values in memory.
+        let codes: Vec<u8> = s.flags.iter().map(|&f| flags::to_stored(f)).collect();
         #[derive(Serialize)]
         struct DenseRef<'a> {
             dims: [usize; 3],
@@ -962,7 +964,7 @@ mod state_layout_tests {
             fluid: DenseRef {
                 dims: s.dims,
                 faces: s.faces,
-                flags: &s.flags,
+                flags: &codes,
                 populations: &dense,
                 mass: &s.mass,
                 pending_excess: s.pending_excess,

@@ -56,10 +56,12 @@ use crate::lattice::{E, Q, W};
 use crate::real::Real;
 
 /// Transient marks, set and cleared within [`Fluid::update_surface`]; the
-/// kernel never sees them.
-const TO_FLUID: u8 = 4;
-const TO_GAS: u8 = 5;
-const NEW_INTERFACE: u8 = 6;
+/// kernel never sees them. Each has the liquid bit of what it stood for
+/// before the marks (`flags::is_liquid`): an interface cell to empty is
+/// read as gas, one to fill and a gas cell turned interface as liquid.
+const TO_FLUID: u8 = 5;
+const TO_GAS: u8 = 4;
+const NEW_INTERFACE: u8 = 7;
 
 /// waLBerla's forced emptying (FindInterfaceCellConversion.h): an I cell
 /// with no F neighbour (but an I neighbour) empties once ε falls below this.
@@ -263,7 +265,10 @@ impl<T: Real> Fluid<T> {
             let old = self.state.flags[c];
             if old != flags::WALL {
                 let new = if liquid(self.coords(c)) { flags::FLUID } else { flags::GAS };
-                self.state.flags[c] = new;
+                // Written only where it changes: a fresh box's gas flags stay unbacked memory.
+                if new != old {
+                    self.state.flags[c] = new;
+                }
                 // Gas holds rest and no mass, as it already does where it
                 // was gas: only a liquid cell turned gas is written (the
                 // gas of a fresh box stays unbacked memory, memory.rs).
@@ -336,8 +341,9 @@ impl<T: Real> Fluid<T> {
         for &cell in cells {
             let c = self.index(cell)?;
             self.state.flags[c] = flags::GAS;
-            self.state.mass[c] = 0.0;
-            self.scratch.fill[c] = 0.0;
+            // A wall holds 0 in its mass, fill and populations (`set_flag`):
+            // nothing else to write, and memory never written stays unbacked.
+            debug_assert!(self.state.mass[c] == 0.0 && self.scratch.fill[c] == 0.0, "wall cell {c} holds a mass");
             self.write_cell(c, &[0.0; Q]);
         }
         for &cell in cells {
@@ -356,6 +362,8 @@ impl<T: Real> Fluid<T> {
         }
         self.scratch.interface.sort_unstable();
         self.scratch.rows_stale = true;
+        // The removed walls' flags are gas (0) again: their pages go back.
+        crate::memory::release_zero_pages(&mut self.state.flags);
         Ok(())
     }
 

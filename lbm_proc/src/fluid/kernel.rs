@@ -150,13 +150,13 @@ impl<T: Real> Kernel<'_, T> {
             self.unforced(k, skipped, applied);
             k = skipped;
             // One pass over a mixed row's chunk flags (liquid flags have bit
-            // 0 clear): a chunk of gas and wall only (the liquid front in a
+            // 0 set): a chunk of gas and wall only (the liquid front in a
             // long flume) is skipped, an all-liquid one is copied out whole.
             let (some_liquid, own_liquid) = if all_fluid {
                 (true, true)
             } else {
                 let (and, or) = self.flags[own..own + n].iter().fold((1, 0), |(and, or), &fl| (and & fl, or | fl));
-                (and & 1 == 0, or & 1 == 0)
+                (or & 1 == 1, and & 1 == 1)
             };
             if !some_liquid {
                 x0 += n;

@@ -22,13 +22,14 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use super::{flags, Faces, FluidState, Layout};
 use crate::lattice::Q;
-use crate::memory::sparse_zeroed;
+use crate::memory::{sparse_zeroed, sparse_zeroed_bytes};
 use crate::real::Real;
 
-/// Runs of equal flags, x fastest: (flag, run length).
+/// Runs of equal flags, x fastest: (stored code of the flag, run length).
 fn flag_runs(cells: &[u8]) -> Vec<(u8, u32)> {
     let mut runs: Vec<(u8, u32)> = Vec::new();
     for &f in cells {
+        let f = flags::to_stored(f);
         match runs.last_mut() {
             Some((g, n)) if *g == f && *n < u32::MAX => *n += 1,
             _ => runs.push((f, 1)),
@@ -118,10 +119,7 @@ impl<'de, T: Real> Deserialize<'de> for FluidState<T> {
             return Err(D::Error::custom(format!("a lattice of {ncells} cells does not fit in memory")));
         }
         drop(probe);
-        let mut cells = Vec::with_capacity(ncells);
-        for &(f, n) in &stored.flag_runs {
-            cells.extend(std::iter::repeat_n(f, n as usize));
-        }
+        let cells = flags_of_runs(ncells, &stored.flag_runs).map_err(D::Error::custom)?;
         let liquid: Vec<usize> = (0..ncells).filter(|&c| flags::is_liquid(cells[c])).collect();
         if stored.populations.len() != Q * liquid.len() || stored.mass.len() != liquid.len() {
             return Err(D::Error::custom(format!(
@@ -144,6 +142,23 @@ impl<'de, T: Real> Deserialize<'de> for FluidState<T> {
             step: stored.step,
         })
     }
+}
+
+/// The flags of `runs` of stored codes (`flag_runs`), written only where
+/// not gas (`memory.rs`). Pre: the runs cover `ncells` cells.
+fn flags_of_runs(ncells: usize, runs: &[(u8, u32)]) -> Result<Vec<u8>, String> {
+    let mut cells = sparse_zeroed_bytes(ncells);
+    let mut start = 0;
+    for &(code, n) in runs {
+        let flag =
+            flags::from_stored(code).ok_or_else(|| format!("cell index {start} has unknown flag code {code}"))?;
+        let end = start + n as usize;
+        if flag != flags::GAS {
+            cells[start..end].fill(flag);
+        }
+        start = end;
+    }
+    Ok(cells)
 }
 
 /// A lattice's populations with `value(i, k)` for population i of the k-th
@@ -200,13 +215,17 @@ impl<T: Real> TryFrom<DenseV1<T>> for FluidState<T> {
                 v.populations.len()
             ));
         }
-        let liquid: Vec<usize> = (0..ncells).filter(|&c| flags::is_liquid(v.flags[c])).collect();
+        let mut cells = v.flags;
+        for (c, f) in cells.iter_mut().enumerate() {
+            *f = flags::from_stored(*f).ok_or_else(|| format!("cell index {c} has unknown flag code {f}"))?;
+        }
+        let liquid: Vec<usize> = (0..ncells).filter(|&c| flags::is_liquid(cells[c])).collect();
         Ok(FluidState {
             dims: v.dims,
             faces: v.faces,
             populations: liquid_populations(v.dims, &liquid, |i, k| v.populations[i * ncells + liquid[k]]),
             mass: liquid_masses(ncells, &liquid, |k| v.mass[liquid[k]]),
-            flags: v.flags,
+            flags: cells,
             pending_excess: v.pending_excess,
             reference_mass: v.reference_mass,
             step: v.step,
@@ -228,10 +247,13 @@ mod tests {
     }
 
     #[test]
-    fn flag_runs_cover_every_cell_in_order() {
-        let cells = [3, 3, 3, 0, 0, 2, 3, 1, 1];
+    fn flag_runs_cover_every_cell_in_order_in_the_recorded_codes() {
+        use flags::{FLUID, GAS, INTERFACE, WALL};
+        let cells = [GAS, GAS, GAS, FLUID, FLUID, INTERFACE, GAS, WALL, WALL];
         let runs = flag_runs(&cells);
+        // docs/recording.md: 0 fluid, 1 wall, 2 interface, 3 gas.
         assert_eq!(runs, vec![(3, 3), (0, 2), (2, 1), (3, 1), (1, 2)]);
+        assert_eq!(flags_of_runs(cells.len(), &runs).unwrap(), cells);
         assert!(flag_runs(&[]).is_empty());
     }
 
@@ -298,6 +320,15 @@ mod tests {
             bincode::serde::decode_from_slice::<FluidState<f32>, _>(&bytes, bincode::config::standard()).unwrap_err();
         assert!(err.to_string().contains("flag runs cover"), "{err}");
         stored.flag_runs[0].1 -= 1;
+        let code = stored.flag_runs[1].0;
+        stored.flag_runs[1].0 = 7;
+        let err = bincode::serde::decode_from_slice::<FluidState<f32>, _>(
+            &encode_stored(&stored),
+            bincode::config::standard(),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("unknown flag code 7"), "{err}");
+        stored.flag_runs[1].0 = code;
         stored.mass.pop();
         let err = bincode::serde::decode_from_slice::<FluidState<f32>, _>(
             &encode_stored(&stored),
