@@ -16,7 +16,7 @@ use runtime::driver::{
 use runtime::exchange::{ExchangeHeader, HydroLoad, ParticleState, StatePeer};
 use runtime::metrics::{CouplingTimings, LbmMetrics};
 use runtime::process::{Progress, RunOptions};
-use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, RecordError};
+use runtime::record::{f32_field, identity_pose, log_level, timestamp, ChannelId, Payload, RecordError};
 use schemas::measures::{front_position, FrontSample};
 use schemas::scene::{Precision, Scene};
 use schemas::summary::{ExchangeDetails, ExchangeSummary, LbmDetails, RunSummary, Throughput};
@@ -817,21 +817,6 @@ fn record_frame<T: Real>(
         let j = ny / 2;
         let to_pascal = setup.density * (dx / units.dt()).powi(2);
         let gravity_z = units.acceleration_to_si(setup.params.acceleration[2]);
-        let mut column = Vec::with_capacity(nz);
-        let mut cells = vec![SliceCell::default(); nz];
-        let mut grid = vec![0u8; nx * nz * SLICE_CELL_BYTES];
-        for i in 0..nx {
-            column.clear();
-            column.extend((0..nz).map(|k| fluid.sample([i, j, k]).ok()));
-            slice_column(&column, CS2, to_pascal, setup.density * gravity_z, dx, &mut cells);
-            for (k, cell) in cells.iter().enumerate() {
-                let at = (k * nx + i) * SLICE_CELL_BYTES;
-                let values = [cell.fill, units.velocity_to_si(cell.speed), cell.pressure, cell.excess_pressure];
-                for (f, v) in values.into_iter().enumerate() {
-                    grid[at + 4 * f..at + 4 * f + 4].copy_from_slice(&(v as f32).to_le_bytes());
-                }
-            }
-        }
         // The grid lies in its pose's x–y plane: turn it +90° about x so its y runs along z.
         let half = std::f64::consts::FRAC_1_SQRT_2;
         let slice = Grid {
@@ -851,9 +836,28 @@ fn record_frame<T: Real>(
                 f32_field("pressure", 8),
                 f32_field("excess_pressure", 12),
             ],
-            data: grid.into(),
+            // Written in place below: one copy of the cells, not two.
+            data: Default::default(),
         };
-        rec.log(ch.slice, t, &slice)?;
+        let fill_cells = |grid: &mut [u8]| {
+            let mut column = Vec::with_capacity(nz);
+            let mut cells = vec![SliceCell::default(); nz];
+            for i in 0..nx {
+                column.clear();
+                column.extend((0..nz).map(|k| fluid.sample([i, j, k]).ok()));
+                slice_column(&column, CS2, to_pascal, setup.density * gravity_z, dx, &mut cells);
+                for (k, cell) in cells.iter().enumerate() {
+                    let at = (k * nx + i) * SLICE_CELL_BYTES;
+                    let values = [cell.fill, units.velocity_to_si(cell.speed), cell.pressure, cell.excess_pressure];
+                    for (f, v) in values.into_iter().enumerate() {
+                        grid[at + 4 * f..at + 4 * f + 4].copy_from_slice(&(v as f32).to_le_bytes());
+                    }
+                }
+            }
+        };
+        // Grid's `data` is its last field, number 9.
+        let cells = Payload { field: 9, len: nx * nz * SLICE_CELL_BYTES, fill: fill_cells };
+        rec.log_with_payload(ch.slice, t, &slice, cells)?;
 
         let si_mass = setup.density * dx.powi(3);
         let si_energy = si_mass * (dx / units.dt()).powi(2);

@@ -233,6 +233,20 @@ impl Recorder {
         self.log_bytes(channel, t, data)
     }
 
+    /// Logs `msg` with a large bytes field written in place: see
+    /// [`encode_with_payload`].
+    pub fn log_with_payload<T: Encode>(
+        &mut self,
+        channel: ChannelId,
+        t: f64,
+        msg: &T,
+        payload: Payload<impl FnOnce(&mut [u8])>,
+    ) -> Result<(), RecordError> {
+        let data =
+            encode_with_payload(msg, payload).map_err(|e| RecordError::Stopped(format!("encoding failed: {e}")))?;
+        self.log_bytes(channel, t, data)
+    }
+
     /// Logs already encoded bytes at simulated time `t` (s).
     pub fn log_bytes(&mut self, channel: ChannelId, t: f64, data: Vec<u8>) -> Result<(), RecordError> {
         self.sequence += 1;
@@ -357,5 +371,67 @@ impl Iterator for VerifiedMessages<'_> {
                 Err(e) => return Some(Err(e)),
             }
         }
+    }
+}
+
+/// A protobuf bytes field to write in place after a message's other fields.
+pub struct Payload<F> {
+    /// Its field number: above every field set in the message, whose own
+    /// copy of it is left empty.
+    pub field: u32,
+    /// Its length in bytes.
+    pub len: usize,
+    /// Writes its bytes (the slice starts zeroed).
+    pub fill: F,
+}
+
+/// `msg` encoded and then `payload`'s field: the same bytes as `msg` with
+/// that field set (protobuf encodes fields in number order, and an empty
+/// bytes field not at all), without a second copy of a large payload, e.g.
+/// a grid's cells (the LBM slice of a long flume is 15 MB a frame).
+pub fn encode_with_payload<T: Encode>(msg: &T, payload: Payload<impl FnOnce(&mut [u8])>) -> Result<Vec<u8>, T::Error> {
+    let Payload { field, len, fill } = payload;
+    let mut data = Vec::with_capacity(msg.encoded_len().unwrap_or(256) + 20 + len);
+    msg.encode(&mut data)?;
+    put_varint(&mut data, (u64::from(field) << 3) | 2);
+    put_varint(&mut data, len as u64);
+    let start = data.len();
+    data.resize(start + len, 0);
+    fill(&mut data[start..]);
+    Ok(data)
+}
+
+fn put_varint(out: &mut Vec<u8>, mut v: u64) {
+    while v >= 0x80 {
+        out.push((v as u8) | 0x80);
+        v >>= 7;
+    }
+    out.push(v as u8);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use foxglove::schemas::{packed_element_field::NumericType, Grid, PackedElementField, Vector2};
+
+    #[test]
+    fn a_payload_written_in_place_encodes_as_the_field_set() {
+        let cells: Vec<u8> = (0..100_000u32).map(|k| (k * 7 % 251) as u8).collect();
+        let grid = |data: Vec<u8>| Grid {
+            frame_id: "world".into(),
+            column_count: 250,
+            cell_size: Some(Vector2 { x: 0.5, y: 0.5 }),
+            row_stride: 1000,
+            cell_stride: 4,
+            fields: vec![PackedElementField { name: "fill".into(), offset: 0, r#type: NumericType::Float32 as i32 }],
+            data: data.into(),
+            ..Default::default()
+        };
+        let mut whole = Vec::new();
+        grid(cells.clone()).encode(&mut whole).unwrap();
+        // Grid's `data` is field 9, its last.
+        let payload = Payload { field: 9, len: cells.len(), fill: |out: &mut [u8]| out.copy_from_slice(&cells) };
+        let in_place = encode_with_payload(&grid(Vec::new()), payload).unwrap();
+        assert_eq!(in_place, whole);
     }
 }
