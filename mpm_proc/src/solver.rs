@@ -2153,8 +2153,10 @@ impl Mpm {
     /// role: unknown where its filling ratio is at least
     /// `free_surface_fill` (`ElementRole::classify`); otherwise given, a
     /// saturated layer's hydrostatic pressure under
-    /// `Params::hydrostatic_surface` (`ElementScratch::saturated_layer`), p = 0
-    /// where the soil has drained or under `"free"`; an
+    /// `Params::hydrostatic_surface` (`ElementScratch::saturated_layer`)
+    /// where the floor or a pressured element below holds the layer up,
+    /// p = 0 where the soil has drained, nothing holds it or under
+    /// `"free"`; an
     /// unknown element filled below 1 holds water and air, with the pore
     /// fluid's modulus of `pore_fluid_modulus` at the air's absolute
     /// pressure `air_pressure` + p̄ (design note §7: without it, an element
@@ -2178,6 +2180,16 @@ impl Mpm {
         }
         let ((r0, r1), (c0, c1)) = (self.rows, self.columns);
         let el = &self.elements;
+        let pressured = |e: usize| {
+            el.liquid_points[e] > 0
+                && ElementRole::classify(true, el.filling_ratio(e, area), p.free_surface_fill) == ElementRole::Unknown
+        };
+        // What a layer inside element e rests on: a wall holding its bottom
+        // nodes up (the floor), or the pressured element below. A wet
+        // element on neither (spray, a drop in free fall) has no layer to
+        // hold: its water falls free, at p = 0.
+        let base = &self.fixities.base;
+        let supported = |e: usize| if e < nx { base[grid.element_corner(e)][1] == 0.0 } else { pressured(e - nx) };
         for r in r0.max(1)..r1.min(grid.elements[1] + 1) {
             for col in c0.max(1)..c1.min(nx + 1) {
                 let e = (r - 1) * nx + (col - 1);
@@ -2186,7 +2198,7 @@ impl Mpm {
                 }
                 let saturation = el.filling_ratio(e, area);
                 let role = match ElementRole::classify(true, saturation, p.free_surface_fill) {
-                    ElementRole::Given(_) if p.hydrostatic_surface => ElementRole::Given(
+                    ElementRole::Given(_) if p.hydrostatic_surface && supported(e) => ElementRole::Given(
                         el.saturated_layer(e, area, p.free_surface_fill)
                             .map_or(0.0, |theta| surface_head * theta * theta),
                     ),

@@ -271,3 +271,47 @@ fn assert_saturated_at_rest(held: &HeldAtRest) {
     // Measured 4e-17: no push along x at rest.
     assert!(fx.abs() < 1e-9 * held.buoyancy, "a push along x {fx}");
 }
+
+/// A sheet of water two thirds of an element thick (θ = 2/3 of 4 mm
+/// elements, no soil) across the box: on the floor it is a saturated layer
+/// and carries ρ_L g θ² h/2 = 8.72 Pa; lifted 50 mm clear of the floor it
+/// rests on nothing, so it gets no pressure and falls free: every point
+/// at v = −g t exactly. A layer pressure granted there would push its top
+/// nodes up and its bottom nodes down and stretch it.
+#[test]
+fn a_detached_sheet_of_water_falls_free_and_one_on_the_floor_keeps_its_layer_pressure() {
+    let h = 4e-3;
+    let theta = 2.0 / 3.0;
+    let on_floor = |lift: f64| {
+        // No local damping, which takes its share α of every out-of-balance force, gravity's too.
+        let mut mpm = common::free_water_column(0.04, theta * h, 1000.0, "damping = 0.0");
+        assert_eq!(mpm.grid.h, h);
+        for x in &mut mpm.state.liquid.set.x {
+            x[1] += lift;
+        }
+        mpm
+    };
+    let layer = 1000.0 * G * theta * theta * h / 2.0;
+    let mut resting = on_floor(0.0);
+    resting.step();
+    let l = &resting.state.liquid;
+    let worst = l.pressure.iter().fold(0.0f64, |w, p| w.max((p - layer).abs()));
+    assert!(worst < 1e-9 * layer, "the resting sheet's pressures off its layer's {layer} Pa by {worst}");
+
+    let mut falling = on_floor(0.05);
+    let steps = (0.02 / falling.params.dt) as usize;
+    for _ in 0..steps {
+        falling.step();
+    }
+    let t = steps as f64 * falling.params.dt;
+    let l = &falling.state.liquid;
+    let (mut dv, mut p_max) = (0.0f64, 0.0f64);
+    for (v, p) in l.set.v.iter().zip(&l.pressure) {
+        dv = dv.max(v[0].abs()).max((v[1] + G * t).abs());
+        p_max = p_max.max(p.abs());
+    }
+    eprintln!("sheet after {t:.4} s of free fall: speed off g t by {dv:.2e} m/s, largest |p| {p_max:.2e} Pa");
+    assert!(p_max == 0.0, "the falling sheet carries {p_max} Pa");
+    // Round-off of the transfers over ~1000 steps: 1e-9 of g t (0.2 m/s).
+    assert!(dv < 1e-9 * G * t, "the falling sheet's velocities off free fall by {dv} m/s");
+}

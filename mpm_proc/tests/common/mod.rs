@@ -79,7 +79,7 @@ condition = "{condition}"
 /// A free-water column `l0` × `h0` m of density `rho` (the soil removed,
 /// its liquid points the water itself, n = 1) in an `l0` × 0.12 m box
 /// whose floor and side walls hold the normal velocity, stress free, on
-/// 2.5 mm elements, with the given `[mpm]` lines.
+/// the default 4 mm elements, with the given `[mpm]` lines.
 #[allow(dead_code)] // not every test file builds one
 pub fn free_water_column(l0: f64, h0: f64, rho: f64, mpm: &str) -> mpm_proc::solver::Mpm {
     let lines = format!("initial_stress = \"zero\"\nfloor = \"frictional\"\n{mpm}");
