@@ -333,6 +333,10 @@ struct ImplicitPressure {
     velocity: [Vec<[f64; 2]>; 2],
     /// Per node: the pressure forces Dᵀp on [solid, liquid], N/m.
     pressure_force: [Vec<[f64; 2]>; 2],
+    /// Per element column, for the row below the one being assembled and
+    /// that row: whether its element holds up a layer above it (pressured,
+    /// or a saturated layer held up itself).
+    holds_up: [Vec<bool>; 2],
     stats: PressureStats,
 }
 
@@ -346,6 +350,7 @@ impl ImplicitPressure {
             reference: vec![[0.0; 4]; ne],
             velocity: [vec![[0.0; 2]; nodes], vec![[0.0; 2]; nodes]],
             pressure_force: [vec![[0.0; 2]; nodes], vec![[0.0; 2]; nodes]],
+            holds_up: [vec![false; grid.elements[0]], vec![false; grid.elements[0]]],
             stats: PressureStats::default(),
         }
     }
@@ -2154,8 +2159,9 @@ impl Mpm {
     /// `free_surface_fill` (`ElementRole::classify`); otherwise given, a
     /// saturated layer's hydrostatic pressure under
     /// `Params::hydrostatic_surface` (`ElementScratch::saturated_layer`)
-    /// where the floor or a pressured element below holds the layer up,
-    /// p = 0 where the soil has drained, nothing holds it or under
+    /// where the floor or the element below (pressured, or a layer held
+    /// up itself) holds the layer up, p = 0 where the soil has drained,
+    /// nothing holds it or under
     /// `"free"`; an
     /// unknown element filled below 1 holds water and air, with the pore
     /// fluid's modulus of `pore_fluid_modulus` at the air's absolute
@@ -2180,29 +2186,36 @@ impl Mpm {
         }
         let ((r0, r1), (c0, c1)) = (self.rows, self.columns);
         let el = &self.elements;
-        let pressured = |e: usize| {
-            el.liquid_points[e] > 0
-                && ElementRole::classify(true, el.filling_ratio(e, area), p.free_surface_fill) == ElementRole::Unknown
-        };
         // What a layer inside element e rests on: a wall holding its bottom
-        // nodes up (the floor), or the pressured element below. A wet
-        // element on neither (spray, a drop in free fall) has no layer to
-        // hold: its water falls free, at p = 0.
-        let base = &self.fixities.base;
-        let supported = |e: usize| if e < nx { base[grid.element_corner(e)][1] == 0.0 } else { pressured(e - nx) };
-        for r in r0.max(1)..r1.min(grid.elements[1] + 1) {
+        // nodes up this step (the floor), or the element below holding up
+        // what lies on it: pressured, or a saturated layer held up itself
+        // (an element of a vertical front). A wet element on neither
+        // (spray, a drop in free fall) has no layer to hold: its water
+        // falls free, at p = 0. Rows are assembled bottom up, so the row
+        // below is done; below the first row there are no points.
+        let mask = &self.mask;
+        let [below, this_row] = &mut imp.holds_up;
+        let first = r0.max(1);
+        for r in first..r1.min(grid.elements[1] + 1) {
             for col in c0.max(1)..c1.min(nx + 1) {
                 let e = (r - 1) * nx + (col - 1);
+                this_row[col - 1] = false;
                 if el.liquid_points[e] == 0 {
                     continue;
                 }
+                let supported =
+                    if r == 1 { mask[grid.element_corner(e)][1] == 0.0 } else { r > first && below[col - 1] };
                 let saturation = el.filling_ratio(e, area);
                 let role = match ElementRole::classify(true, saturation, p.free_surface_fill) {
-                    ElementRole::Given(_) if p.hydrostatic_surface && supported(e) => ElementRole::Given(
+                    ElementRole::Given(_) if p.hydrostatic_surface && supported => ElementRole::Given(
                         el.saturated_layer(e, area, p.free_surface_fill)
                             .map_or(0.0, |theta| surface_head * theta * theta),
                     ),
                     role => role,
+                };
+                this_row[col - 1] = match role {
+                    ElementRole::Unknown => true,
+                    ElementRole::Given(layer) => layer > 0.0,
                 };
                 let [w, wp, w_free, wp_free] = imp.reference[e];
                 let reference = if w > 0.0 {
@@ -2220,6 +2233,7 @@ impl Mpm {
                 // Warm start from p̄ (not the last solution: a restart sees the same).
                 imp.pressure[e] = reference;
             }
+            std::mem::swap(below, this_row);
         }
         problem.index_elements();
     }

@@ -495,8 +495,9 @@ pub struct MpmSpec {
     /// grains); `hydrostatic`: p = ρ_L g_z θ² h/2, θ the element's
     /// occupied share (grains and water over its area), the pressure that
     /// holds such a layer's water at rest on the element's nodes, where
-    /// the floor or a pressured element below holds the layer up (a
-    /// detached wet element falls free at p = 0). Drained
+    /// the floor or the element below (pressured, or a layer held up
+    /// itself) holds the layer up; a detached wet element falls free at
+    /// p = 0. Drained
     /// elements (water below `free_surface_fill` of their soil's pores)
     /// stay free under both (docs/mpm.md, "Pore pressure"). Default
     /// `hydrostatic` under the implicit scheme (since session 40: a column
