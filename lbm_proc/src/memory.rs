@@ -18,6 +18,25 @@ use crate::real::Real;
 /// Arrays smaller than this are not worth an advice call.
 const ADVISE_FROM_BYTES: usize = 8 << 20;
 
+/// The operating system's page size, bytes (4096 where it cannot be
+/// read). Every range given back must be whole pages of this size: a
+/// kernel rounds a release's length up to its own page, which would clear
+/// values past the range.
+fn page_size() -> usize {
+    static PAGE: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *PAGE.get_or_init(|| {
+        #[cfg(unix)]
+        {
+            // SAFETY: sysconf only reads a system constant.
+            let size = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+            if size > 0 {
+                return size as usize;
+            }
+        }
+        4096
+    })
+}
+
 /// A vector of `len` zeros whose pages are backed only once written
 /// (see the module's comment).
 pub fn sparse_zeroed<T: Real>(len: usize) -> Vec<T> {
@@ -43,9 +62,9 @@ fn no_huge_pages(ptr: *const u8, len: usize) {
     }
     #[cfg(target_os = "linux")]
     {
-        const PAGE: usize = 4096;
-        let start = (ptr as usize).next_multiple_of(PAGE);
-        let end = (ptr as usize + len) / PAGE * PAGE;
+        let page = page_size();
+        let start = (ptr as usize).next_multiple_of(page);
+        let end = (ptr as usize + len) / page * page;
         if end > start {
             // SAFETY: the range lies inside one live allocation; MADV_NOHUGEPAGE
             // changes how its pages are backed, never their contents. A
@@ -70,10 +89,10 @@ pub fn release_zeros<T: Real>(values: &mut [T], range: std::ops::Range<usize>) {
     debug_assert!(values.iter().all(|v| v.to_f64().to_bits() == 0), "release_zeros over non-zero values");
     #[cfg(target_os = "linux")]
     {
-        const PAGE: usize = 4096;
+        let page = page_size();
         let (ptr, len) = (values.as_mut_ptr() as usize, std::mem::size_of_val(values));
-        let start = ptr.next_multiple_of(PAGE);
-        let end = (ptr + len) / PAGE * PAGE;
+        let start = ptr.next_multiple_of(page);
+        let end = (ptr + len) / page * page;
         if end > start {
             // SAFETY: whole pages inside one live allocation that this
             // function borrows mutably; MADV_DONTNEED on private anonymous
@@ -89,13 +108,13 @@ pub fn release_zeros<T: Real>(values: &mut [T], range: std::ops::Range<usize>) {
 /// flags of cells that are gas again, e.g. where a gate stood
 /// (`fluid::flags`). Changes no value. Elsewhere than Linux: nothing.
 pub fn release_zero_pages(values: &mut [u8]) {
-    const PAGE: usize = 4096;
+    let page = page_size();
     let ptr = values.as_ptr() as usize;
-    let first = ptr.next_multiple_of(PAGE) - ptr;
+    let first = ptr.next_multiple_of(page) - ptr;
     let mut run: Option<usize> = None;
     let mut at = first;
-    while at + PAGE <= values.len() {
-        let zero = values[at..at + PAGE].iter().all(|&b| b == 0);
+    while at + page <= values.len() {
+        let zero = values[at..at + page].iter().all(|&b| b == 0);
         match (zero, run) {
             (true, None) => run = Some(at),
             (false, Some(start)) => {
@@ -104,7 +123,7 @@ pub fn release_zero_pages(values: &mut [u8]) {
             }
             _ => {}
         }
-        at += PAGE;
+        at += page;
     }
     if let Some(start) = run {
         release_zeros_bytes(&mut values[start..at]);
@@ -130,14 +149,14 @@ fn release_zeros_bytes(values: &mut [u8]) {
 pub fn resident_pages(ptr: *const u8, bytes: usize) -> Option<usize> {
     #[cfg(target_os = "linux")]
     {
-        const PAGE: usize = 4096;
-        let start = ptr as usize / PAGE * PAGE;
-        let pages = (ptr as usize + bytes).div_ceil(PAGE) - start / PAGE;
+        let page = page_size();
+        let start = ptr as usize / page * page;
+        let pages = (ptr as usize + bytes).div_ceil(page) - start / page;
         let mut map = vec![0u8; pages];
         // SAFETY: the range covers whole pages of one live allocation (the
         // first and last possibly shared with its neighbours, which mincore
         // only reads); `map` has one byte per page.
-        let rc = unsafe { libc::mincore(start as *mut libc::c_void, pages * PAGE, map.as_mut_ptr()) };
+        let rc = unsafe { libc::mincore(start as *mut libc::c_void, pages * page, map.as_mut_ptr()) };
         (rc == 0).then(|| map.iter().filter(|&&b| b & 1 == 1).count())
     }
     #[cfg(not(target_os = "linux"))]

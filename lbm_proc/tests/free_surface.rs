@@ -636,11 +636,11 @@ fn the_flags_and_masses_of_the_gas_cost_no_memory_even_where_a_gate_stood() {
     // at one end held by a gate one cell thick over the whole height, then
     // the gate opened. The water's 16 layers of 32 rows, and the interface
     // layer above, are 544 of the 8192 rows; each row is one page of flags
-    // (straddling two) and the water's part of a row one page of masses
-    // (of 8): ~13 % of the flags and ~2 % of the masses written. The gate
-    // wrote a flag in every row, gas (0) again once it opened; those pages
-    // go back. Dense flags, or masses written over the gate, would be
-    // ~100 % and ≥ 12 % backed.
+    // and the water's part of a row one page of masses (of 8): 6.6 % of
+    // the flags and 0.8 % of the masses written (0.062 and 0.008
+    // measured). The gate wrote a flag in every row, gas (0) again once it
+    // opened; those pages go back. Dense flags, or flags not given back,
+    // are 100 % backed (measured); masses written over the gate ≥ 12.5 % (a page in every row).
     let params = FluidParams { acceleration: [0.0, 0.0, -1e-4], ..FluidParams::new(0.55) };
     let [nx, ny, nz] = [4096, 32, 256];
     let mut fluid = Fluid::<f32>::empty([nx, ny, nz], [Faces::Walls; 3], params).expect("valid");
@@ -656,12 +656,12 @@ fn the_flags_and_masses_of_the_gas_cost_no_memory_even_where_a_gate_stood() {
     }
     // Conserved to the f32 populations' round-off (docs/results/convergence: 6e-7 over a whole run).
     assert!((fluid.liquid_mass() - mass).abs() < 1e-6 * mass, "mass {} against {mass}", fluid.liquid_mass());
-    if let Some(share) = written_share(&fluid.state().flags) {
-        println!("flags: {share:.3} of their bytes backed");
-        assert!(share < 0.2, "{share:.3} of the flags backed");
-    }
-    if let Some(share) = written_share(&fluid.state().mass) {
-        println!("masses: {share:.3} of their bytes backed");
-        assert!(share < 0.05, "{share:.3} of the masses backed");
+    let (flags_share, mass_share) = (written_share(&fluid.state().flags), written_share(&fluid.state().mass));
+    // On Linux the shares must be read, or the test would check nothing.
+    assert!(!cfg!(target_os = "linux") || (flags_share.is_some() && mass_share.is_some()), "smaps not read");
+    if let (Some(flags), Some(masses)) = (flags_share, mass_share) {
+        println!("flags: {flags:.3}, masses: {masses:.3} of their bytes backed");
+        assert!(flags < 0.2, "{flags:.3} of the flags backed");
+        assert!(masses < 0.05, "{masses:.3} of the masses backed");
     }
 }

@@ -391,8 +391,13 @@ pub struct Payload<F> {
 /// a grid's cells (the LBM slice of a long flume is 15 MB a frame).
 pub fn encode_with_payload<T: Encode>(msg: &T, payload: Payload<impl FnOnce(&mut [u8])>) -> Result<Vec<u8>, T::Error> {
     let Payload { field, len, fill } = payload;
+    debug_assert!((1..1 << 29).contains(&field), "protobuf field numbers are 1 to 2^29 - 1, got {field}");
     let mut data = Vec::with_capacity(msg.encoded_len().unwrap_or(256) + 20 + len);
     msg.encode(&mut data)?;
+    if len == 0 {
+        // An empty bytes field is not encoded at all.
+        return Ok(data);
+    }
     put_varint(&mut data, (u64::from(field) << 3) | 2);
     put_varint(&mut data, len as u64);
     let start = data.len();

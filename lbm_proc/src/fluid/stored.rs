@@ -215,9 +215,14 @@ impl<T: Real> TryFrom<DenseV1<T>> for FluidState<T> {
                 v.populations.len()
             ));
         }
-        let mut cells = v.flags;
-        for (c, f) in cells.iter_mut().enumerate() {
-            *f = flags::from_stored(*f).ok_or_else(|| format!("cell index {c} has unknown flag code {f}"))?;
+        // Written only where not gas, as `flags_of_runs` does.
+        let mut cells = sparse_zeroed_bytes(ncells);
+        for (c, &code) in v.flags.iter().enumerate() {
+            let flag =
+                flags::from_stored(code).ok_or_else(|| format!("cell index {c} has unknown flag code {code}"))?;
+            if flag != flags::GAS {
+                cells[c] = flag;
+            }
         }
         let liquid: Vec<usize> = (0..ncells).filter(|&c| flags::is_liquid(cells[c])).collect();
         Ok(FluidState {
