@@ -2186,8 +2186,8 @@ impl Mpm {
         }
         let ((r0, r1), (c0, c1)) = (self.rows, self.columns);
         let el = &self.elements;
-        // What a layer inside element e rests on: a wall holding its bottom
-        // nodes up this step (the floor), or the element below holding up
+        // What a layer inside element e rests on: a wall holding one of its
+        // bottom nodes up this step (the floor), or the element below holding up
         // what lies on it: pressured, or a saturated layer held up itself
         // (an element of a vertical front). A wet element on neither
         // (spray, a drop in free fall) has no layer to hold: its water
@@ -2203,8 +2203,14 @@ impl Mpm {
                 if el.liquid_points[e] == 0 {
                     continue;
                 }
-                let supported =
-                    if r == 1 { mask[grid.element_corner(e)][1] == 0.0 } else { r > first && below[col - 1] };
+                // Either bottom node held: the same rule whichever way the
+                // flow runs when a unilateral floor releases one of them.
+                let corner = grid.element_corner(e);
+                let supported = if r == 1 {
+                    mask[corner][1] == 0.0 || mask[corner + 1][1] == 0.0
+                } else {
+                    r > first && below[col - 1]
+                };
                 let saturation = el.filling_ratio(e, area);
                 let role = match ElementRole::classify(true, saturation, p.free_surface_fill) {
                     ElementRole::Given(_) if p.hydrostatic_surface && supported => ElementRole::Given(
