@@ -25,8 +25,9 @@ use schemas::topics;
 use crate::setup::{build, MpmSetup, SetupError};
 use crate::solver::{LiquidImpulse, Mpm, MpmState, PointSet};
 
-/// Version of the `/mpm/state` bincode layout (3: `MpmState::walls_released`).
-pub const STATE_VERSION: u32 = 3;
+/// Version of the `/mpm/state` bincode layout (3: `MpmState::walls_released`;
+/// 4: `PointSet::id`).
+pub const STATE_VERSION: u32 = 4;
 
 /// Full state at a frame (`/mpm/state`): enough to continue the run bit for bit.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -695,7 +696,9 @@ fn speed(set: &PointSet, p: usize) -> f64 {
 fn cloud_of(set: &PointSet, t: f64, y: f32, names: [&str; 4], fields: impl Fn(usize) -> [f64; 4]) -> PointCloud {
     const STRIDE: usize = 28;
     let mut data = Vec::with_capacity(set.len() * STRIDE);
-    for p in 0..set.len() {
+    // In id order, so that a point keeps its place in every frame while
+    // the solver reorders its arrays.
+    for p in set.by_id() {
         let x = set.x[p];
         data.extend_from_slice(&(x[0] as f32).to_le_bytes());
         data.extend_from_slice(&y.to_le_bytes());

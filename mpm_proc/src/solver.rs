@@ -30,6 +30,11 @@ const CHUNK: usize = 64;
 /// whole run).
 const NODE_CHUNK: usize = 32;
 
+/// Steps between two reorderings of the points into the grid's order
+/// (`Mpm::sort_points`). Every 10, 100 or 1000 steps ran the lab column
+/// equally fast (session 43): points cross an element in ~400 steps.
+const SORT_INTERVAL: u64 = 100;
+
 /// Material and numerical parameters, SI.
 #[derive(Debug, Clone)]
 pub struct Params {
@@ -138,6 +143,11 @@ pub struct PointSet {
     /// C = B D⁻¹ at the last update (row a: ∂v_a/∂x, ∂v_a/∂z), 1/s.
     /// Empty under FLIP.
     pub affine: Vec<[[f64; 2]; 2]>,
+    /// Each point's id, its index when the set was made. The solver keeps
+    /// the points in the grid's order ([`Mpm::step`]'s `sort_points`), so
+    /// a point's index changes over a run and its id does not. Empty until
+    /// the first sort: ids are then the indices.
+    pub id: Vec<u32>,
 }
 
 impl PointSet {
@@ -178,6 +188,36 @@ impl PointSet {
     pub fn total_mass(&self) -> f64 {
         self.mass.iter().sum()
     }
+    /// The id of the point at index `p` (its index when the set was made).
+    pub fn id_of(&self, p: usize) -> u32 {
+        self.id.get(p).copied().unwrap_or(p as u32)
+    }
+    /// The index of each id: `by_id()[id]` is the point's index now.
+    pub fn by_id(&self) -> Vec<usize> {
+        let mut index = vec![0; self.len()];
+        for p in 0..self.len() {
+            index[self.id_of(p) as usize] = p;
+        }
+        index
+    }
+    /// Swaps points `a` and `b` in every per-point array.
+    fn swap(&mut self, a: usize, b: usize) {
+        self.x.swap(a, b);
+        self.v.swap(a, b);
+        self.mass.swap(a, b);
+        self.volume.swap(a, b);
+        swap_if_per_point(&mut self.affine, self.x.len(), a, b);
+        self.id.swap(a, b);
+    }
+}
+
+/// Swaps `a` and `b` in `values` when it holds one value per point (of `n`);
+/// optional per-point arrays (APIC's affine part, the top load) are empty
+/// when unused.
+fn swap_if_per_point<T>(values: &mut [T], n: usize, a: usize, b: usize) {
+    if values.len() == n {
+        values.swap(a, b);
+    }
 }
 
 /// Solid material points (the skeleton).
@@ -194,6 +234,17 @@ pub struct SolidPoints {
     pub load: Vec<[f64; 2]>,
 }
 
+impl SolidPoints {
+    fn swap(&mut self, a: usize, b: usize) {
+        let n = self.set.len();
+        self.set.swap(a, b);
+        swap_if_per_point(&mut self.porosity, n, a, b);
+        swap_if_per_point(&mut self.stress, n, a, b);
+        swap_if_per_point(&mut self.fluidised, n, a, b);
+        swap_if_per_point(&mut self.load, n, a, b);
+    }
+}
+
 /// Liquid material points.
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
 pub struct LiquidPoints {
@@ -206,6 +257,16 @@ pub struct LiquidPoints {
     /// the implicit scheme's `surface_elements = "hydrostatic"` at a
     /// saturated layer's given pressure (`ElementScratch::saturated_layer`).
     pub free_surface: Vec<bool>,
+}
+
+impl LiquidPoints {
+    fn swap(&mut self, a: usize, b: usize) {
+        let n = self.set.len();
+        self.set.swap(a, b);
+        swap_if_per_point(&mut self.pressure, n, a, b);
+        swap_if_per_point(&mut self.viscous, n, a, b);
+        swap_if_per_point(&mut self.free_surface, n, a, b);
+    }
 }
 
 /// Everything that determines the rest of a run.
@@ -563,6 +624,8 @@ pub struct Mpm {
     liquid_force_field: Option<LiquidForceField>,
     /// The implicit pressure's scratch (`Params::implicit_pressure`).
     implicit: Option<Box<ImplicitPressure>>,
+    /// `sort_points`' scratch: which points the reordering has placed.
+    sort_done: Vec<bool>,
 }
 
 /// The liquid's impulse on the solid node by node, split into the parts
@@ -714,6 +777,7 @@ impl Mpm {
             liquid_impulse: LiquidImpulse::default(),
             liquid_force_field: None,
             implicit: None,
+            sort_done: Vec::new(),
             state,
         };
         if mpm.params.implicit_pressure {
@@ -876,6 +940,9 @@ impl Mpm {
         if self.params.unilateral_walls {
             self.hold_walls_and_gates();
         }
+        if self.state.steps.is_multiple_of(SORT_INTERVAL) {
+            self.sort_points();
+        }
         self.locate();
         lap(&mut seconds.locate);
         self.map_to_grid();
@@ -998,6 +1065,31 @@ impl Mpm {
             }
         }
         (solid, liquid)
+    }
+
+    // -- stage 0 ---------------------------------------------------------
+
+    /// Both point sets put in the order of their stencils' base nodes, row
+    /// by row (a stable counting sort, [`Self::bin_points`]), every
+    /// [`SORT_INTERVAL`] steps. The point stages split the points by index
+    /// and the node stages split the nodes by position; in the grid's order
+    /// a thread's points and the nodes it gathers into lie in one region,
+    /// so a node stage reads mostly what its own core wrote in the stage
+    /// before, and a node's points lie together in memory (LAMMPS's atom
+    /// sort). Post: `PointSet::id` keeps each point's identity. Sums over
+    /// the points run in index order, so the order changes results at
+    /// round-off only (docs/mpm.md, "Parallel work and determinism").
+    fn sort_points(&mut self) {
+        let Self { grid, state, solid_scratch, liquid_scratch, sort_done, .. } = self;
+        for set in [&mut state.solid.set, &mut state.liquid.set] {
+            if set.id.len() != set.len() {
+                set.id = (0..set.len() as u32).collect();
+            }
+        }
+        Self::bin_points(grid, &state.solid.set, solid_scratch);
+        reorder(&solid_scratch.order, sort_done, |a, b| state.solid.swap(a, b));
+        Self::bin_points(grid, &state.liquid.set, liquid_scratch);
+        reorder(&liquid_scratch.order, sort_done, |a, b| state.liquid.swap(a, b));
     }
 
     // -- stage 1 ---------------------------------------------------------
@@ -2440,6 +2532,25 @@ const SPREAD: f64 = 0.01;
 /// The axis of a node's wall normal from its `Fixities::contact` vector
 /// (the unit vector into the wall): 0 for a side wall, 1 for the floor,
 /// None off the walls. The x component is read first.
+/// Reorders in place so that index i holds what index `order[i]` held,
+/// through `swap`, one cycle of the permutation at a time (`done`: scratch).
+fn reorder(order: &[u32], done: &mut Vec<bool>, mut swap: impl FnMut(usize, usize)) {
+    done.clear();
+    done.resize(order.len(), false);
+    for start in 0..order.len() {
+        let mut j = start;
+        while !done[j] {
+            done[j] = true;
+            let k = order[j] as usize;
+            if k == start {
+                break;
+            }
+            swap(j, k);
+            j = k;
+        }
+    }
+}
+
 fn wall_normal_axis(into: [f64; 2]) -> Option<usize> {
     if into[0] != 0.0 {
         Some(0)

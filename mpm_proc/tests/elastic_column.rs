@@ -52,8 +52,12 @@ fn vibrate(shape: &str, transfer: &str) -> Measured {
     // Top row of solid points: z above H − h/2 (2 × 2 points per element: rows at H − h/4 and H − 3h/4).
     let top: Vec<usize> = (0..s.set.len()).filter(|&i| s.set.x[i][1] > H - h / 2.0).collect();
     assert_eq!(top.len(), 4, "top row of a two-element-wide column with 2 x 2 points");
-    let mean_z =
-        |m: &mpm_proc::solver::Mpm| top.iter().map(|&i| m.state.solid.set.x[i][1]).sum::<f64>() / top.len() as f64;
+    // By id: the solver reorders its points (the indices here are the ids
+    // before the first step).
+    let mean_z = |m: &mpm_proc::solver::Mpm| {
+        let index = m.state.solid.set.by_id();
+        top.iter().map(|&i| m.state.solid.set.x[index[i]][1]).sum::<f64>() / top.len() as f64
+    };
     let z0 = mean_z(mpm);
 
     let e_oed = E * (1.0 - NU) / ((1.0 + NU) * (1.0 - 2.0 * NU));

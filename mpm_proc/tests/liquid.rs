@@ -66,8 +66,11 @@ fn split_block(cavitation: f64, transfer: &str, scheme: &str) -> (f64, f64, f64,
     // beyond that element, which the front reaches at h/c.
     let h = m.grid.h;
     let beyond: Vec<usize> = upper.iter().copied().filter(|&p| l.x[p][1] > mid + h).collect();
-    let up_momentum =
-        |m: &Mpm| -> f64 { beyond.iter().map(|&p| m.state.liquid.set.mass[p] * m.state.liquid.set.v[p][1]).sum() };
+    // By id (the indices before the first step): the solver reorders its points.
+    let up_momentum = |m: &Mpm| -> f64 {
+        let (set, index) = (&m.state.liquid.set, m.state.liquid.set.by_id());
+        beyond.iter().map(|&p| set.mass[index[p]] * set.v[index[p]][1]).sum()
+    };
     let c = (k / RHO).sqrt();
     let steps = (0.9 * 0.5 * H0 / c / m.params.dt).round() as usize;
     // The momentum is read from when the front has crossed the plane's
@@ -184,11 +187,13 @@ fn soft_column(scheme: &str) {
     let rows = ((H0 / h).round() as usize) - 1;
     let (mut ep, mut es): (f64, f64) = (0.0, 0.0);
     for r in 0..rows {
-        let inside: Vec<usize> = (0..l.set.len()).filter(|&p| (z0[p] / h) as usize == r).collect();
+        // z0 by id: the solver reorders its points.
+        let z0 = |p: usize| z0[l.set.id_of(p) as usize];
+        let inside: Vec<usize> = (0..l.set.len()).filter(|&p| (z0(p) / h) as usize == r).collect();
         let mean = inside.iter().map(|&p| l.pressure[p]).sum::<f64>() / inside.len() as f64;
         ep = ep.max((mean - RHO * G * (H0 - (r as f64 + 0.5) * h)).abs() / (RHO * G * H0));
         for &p in &inside {
-            es = es.max((z0[p] - l.set.x[p][1] - settled(z0[p])).abs() / settled(H0 - h));
+            es = es.max((z0(p) - l.set.x[p][1] - settled(z0(p))).abs() / settled(H0 - h));
         }
     }
     eprintln!(

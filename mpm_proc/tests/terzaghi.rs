@@ -66,7 +66,9 @@ fn scene(c: &Column) -> schemas::Scene {
     common::column(2.0 * h, height, height + 0.2, Some(height), grain, &mpm_lines, &["domain.gravity=[0.0, 0.0, 0.0]"])
 }
 
-/// Liquid point rows: (mean z, indices), bottom first.
+/// Liquid point rows: (mean z, point ids), bottom first. Read before the
+/// first step, where a point's id is its index (the solver reorders its
+/// points as it steps: `PointSet::by_id`).
 fn rows(mpm: &Mpm) -> Vec<(f64, Vec<usize>)> {
     let l = &mpm.state.liquid.set;
     let mut out: Vec<(f64, Vec<usize>)> = Vec::new();
@@ -81,8 +83,8 @@ fn rows(mpm: &Mpm) -> Vec<(f64, Vec<usize>)> {
     out
 }
 
-fn row_pressure(mpm: &Mpm, row: &[usize]) -> f64 {
-    row.iter().map(|&i| mpm.state.liquid.pressure[i]).sum::<f64>() / row.len() as f64
+fn row_pressure(mpm: &Mpm, index: &[usize], row: &[usize]) -> f64 {
+    row.iter().map(|&i| mpm.state.liquid.pressure[index[i]]).sum::<f64>() / row.len() as f64
 }
 
 struct Run {
@@ -139,12 +141,13 @@ fn run(c: &Column, t_end_tv: f64, t_end_waves: f64) -> Run {
     let (mut t, mut p) = (Vec::with_capacity(steps), Vec::with_capacity(steps));
     for k in 0..steps {
         mpm.step();
+        let index = mpm.state.liquid.set.by_id();
         if k == 0 {
             // Which liquid rows are on the free surface.
             let fs: Vec<(usize, f64)> = rows
                 .iter()
                 .enumerate()
-                .filter(|(_, (_, r))| r.iter().any(|&i| mpm.state.liquid.free_surface[i]))
+                .filter(|(_, (_, r))| r.iter().any(|&i| mpm.state.liquid.free_surface[index[i]]))
                 .map(|(k, (z, _))| (k, *z))
                 .collect();
             eprintln!("free-surface liquid rows (index, z): {fs:?} of {} rows", rows.len());
@@ -156,7 +159,7 @@ fn run(c: &Column, t_end_tv: f64, t_end_waves: f64) -> Run {
             }
         }
         t.push(mpm.state.time);
-        p.push(rows.iter().map(|(_, r)| row_pressure(mpm, r)).collect());
+        p.push(rows.iter().map(|(_, r)| row_pressure(mpm, &index, r)).collect());
     }
     eprintln!(
         "kappa {kappa:.3e} m^2, c_v {cv:.4} m^2/s, c_u {cu:.1} m/s, H {hd} m, t_end {t_end:.3} s, {steps} steps of {:.3e} s, {:.2} s wall",
