@@ -60,20 +60,34 @@ fn no_huge_pages(ptr: *const u8, len: usize) {
     if len < ADVISE_FROM_BYTES {
         return;
     }
+    // SAFETY: the range lies inside one live allocation; MADV_NOHUGEPAGE
+    // changes how its pages are backed, never their contents. A failure (a
+    // kernel without THP) leaves the default.
     #[cfg(target_os = "linux")]
-    {
-        let page = page_size();
-        let start = (ptr as usize).next_multiple_of(page);
-        let end = (ptr as usize + len) / page * page;
-        if end > start {
-            // SAFETY: the range lies inside one live allocation; MADV_NOHUGEPAGE
-            // changes how its pages are backed, never their contents. A
-            // failure (a kernel without THP) leaves the default.
-            unsafe { libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_NOHUGEPAGE) };
-        }
-    }
+    unsafe {
+        advise_whole_pages(ptr as usize, len, libc::MADV_NOHUGEPAGE)
+    };
     #[cfg(not(target_os = "linux"))]
     let _ = ptr;
+}
+
+/// Gives `advice` for the whole pages inside `len` bytes from `ptr`: the
+/// range rounded inward to the operating system's pages, since a kernel
+/// rounds a length up to its own page and would reach past the range.
+///
+/// # Safety
+/// The range lies inside one live allocation of the allocator (anonymous
+/// memory), and `advice` changes no value the caller can read there:
+/// MADV_DONTNEED only over zeros, which it makes read as zeros again.
+#[cfg(target_os = "linux")]
+unsafe fn advise_whole_pages(ptr: usize, len: usize, advice: libc::c_int) {
+    let page = page_size();
+    let start = ptr.next_multiple_of(page);
+    let end = (ptr + len) / page * page;
+    if end > start {
+        // SAFETY: whole pages inside the caller's range (see above).
+        unsafe { libc::madvise(start as *mut libc::c_void, end - start, advice) };
+    }
 }
 
 /// Gives back to the operating system the whole pages inside
@@ -87,21 +101,7 @@ fn no_huge_pages(ptr: *const u8, len: usize) {
 pub fn release_zeros<T: Real>(values: &mut [T], range: std::ops::Range<usize>) {
     let values = &mut values[range];
     debug_assert!(values.iter().all(|v| v.to_f64().to_bits() == 0), "release_zeros over non-zero values");
-    #[cfg(target_os = "linux")]
-    {
-        let page = page_size();
-        let (ptr, len) = (values.as_mut_ptr() as usize, std::mem::size_of_val(values));
-        let start = ptr.next_multiple_of(page);
-        let end = (ptr + len) / page * page;
-        if end > start {
-            // SAFETY: whole pages inside one live allocation that this
-            // function borrows mutably; MADV_DONTNEED on private anonymous
-            // memory makes them read as zeros, which they hold already.
-            unsafe { libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_DONTNEED) };
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = values;
+    release_zeroed_range(values.as_mut_ptr() as usize, std::mem::size_of_val(values));
 }
 
 /// Gives back the whole pages of `values` that hold only zero bytes: the
@@ -113,12 +113,16 @@ pub fn release_zero_pages(values: &mut [u8]) {
     let first = ptr.next_multiple_of(page) - ptr;
     let mut run: Option<usize> = None;
     let mut at = first;
+    let release = |values: &mut [u8]| {
+        debug_assert!(values.iter().all(|&b| b == 0), "release over non-zero bytes");
+        release_zeroed_range(values.as_mut_ptr() as usize, values.len());
+    };
     while at + page <= values.len() {
         let zero = values[at..at + page].iter().all(|&b| b == 0);
         match (zero, run) {
             (true, None) => run = Some(at),
             (false, Some(start)) => {
-                release_zeros_bytes(&mut values[start..at]);
+                release(&mut values[start..at]);
                 run = None;
             }
             _ => {}
@@ -126,22 +130,23 @@ pub fn release_zero_pages(values: &mut [u8]) {
         at += page;
     }
     if let Some(start) = run {
-        release_zeros_bytes(&mut values[start..at]);
+        release(&mut values[start..at]);
     }
 }
 
-/// [`release_zeros`] for whole pages of bytes. Pre: all zero, page-aligned.
-fn release_zeros_bytes(values: &mut [u8]) {
-    debug_assert!(values.iter().all(|&b| b == 0), "release_zeros_bytes over non-zero bytes");
-    #[cfg(target_os = "linux")]
-    // SAFETY: whole pages inside one live allocation that this function
-    // borrows mutably; MADV_DONTNEED on private anonymous memory makes them
+/// MADV_DONTNEED over the whole pages of `len` bytes from `ptr`, a range
+/// of zeros the caller borrows mutably (the callers check that in debug
+/// builds). Elsewhere than Linux: nothing.
+fn release_zeroed_range(ptr: usize, len: usize) {
+    // SAFETY: the callers pass a mutably borrowed slice of a `Vec` (private
+    // anonymous memory) holding only zeros; MADV_DONTNEED makes its pages
     // read as zeros, which they hold already.
+    #[cfg(target_os = "linux")]
     unsafe {
-        libc::madvise(values.as_mut_ptr() as *mut libc::c_void, values.len(), libc::MADV_DONTNEED)
+        advise_whole_pages(ptr, len, libc::MADV_DONTNEED)
     };
     #[cfg(not(target_os = "linux"))]
-    let _ = values;
+    let _ = (ptr, len);
 }
 
 /// How many of the pages under `bytes` from `ptr` are resident (Linux;

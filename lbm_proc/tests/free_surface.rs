@@ -601,32 +601,38 @@ fn the_memory_of_segments_the_liquid_left_is_given_back_without_changing_a_value
     assert!(fluid.state() == kept.state(), "releasing memory changed the run");
 }
 
-/// The memory backing `values` (the `Rss` of the mappings that hold them
-/// in `/proc/self/smaps`, which leaves out the shared zero page that reads
-/// of unwritten memory map), as a share of their size; `None` off Linux or
-/// where those mappings hold much else (the allocator gives allocations
-/// above 32 MiB mappings of their own; the advice in `memory.rs` may split
-/// one in three).
+/// The memory backing `values`, as a share of their size: the pages of
+/// their range that `/proc/self/pagemap` marks present and exclusively
+/// mapped (bits 63 and 56). Reads of memory never written map the shared
+/// zero page, which is present but not exclusive, so they do not count.
+/// Page by page, so it reads the same whatever the kernel merged the
+/// arrays' mapping with (under `cargo test`'s parallel tests, another
+/// test's lattice). A fork by another thread while it reads would make
+/// written pages shared for a moment and count them out: the share can
+/// only read low, never high. `None` off Linux or where pagemap cannot be
+/// read.
 fn written_share<T>(values: &[T]) -> Option<f64> {
-    let smaps = std::fs::read_to_string("/proc/self/smaps").ok()?;
+    use std::os::unix::fs::FileExt;
+    const PRESENT: u64 = 1 << 63;
+    const EXCLUSIVE: u64 = 1 << 56;
+    // SAFETY: sysconf only reads a system constant.
+    let page = usize::try_from(unsafe { libc::sysconf(libc::_SC_PAGESIZE) }).ok().filter(|&p| p > 0)?;
     let bytes = std::mem::size_of_val(values);
     let (start, end) = (values.as_ptr() as usize, values.as_ptr() as usize + bytes);
-    let (mut mapped, mut rss_kb) = (0, 0.0);
-    let mut overlapping = false;
-    for line in smaps.lines() {
-        let range = line.split_once(' ').and_then(|(range, _)| range.split_once('-'));
-        if let Some((Ok(lo), Ok(hi))) =
-            range.map(|(lo, hi)| (usize::from_str_radix(lo, 16), usize::from_str_radix(hi, 16)))
-        {
-            overlapping = lo < end && start < hi;
-            if overlapping {
-                mapped += hi - lo;
-            }
-        } else if let Some(rss) = line.strip_prefix("Rss:").filter(|_| overlapping) {
-            rss_kb += rss.trim().trim_end_matches("kB").trim().parse::<f64>().ok()?;
-        }
+    // Whole pages inside the range only: the end pages may hold neighbours.
+    let (first, last) = (start.div_ceil(page), end / page);
+    if last <= first {
+        return None;
     }
-    (mapped > 0 && mapped < bytes + (1 << 20)).then(|| rss_kb * 1024.0 / bytes as f64)
+    let file = std::fs::File::open("/proc/self/pagemap").ok()?;
+    let mut entries = vec![0u8; (last - first) * 8];
+    file.read_exact_at(&mut entries, first as u64 * 8).ok()?;
+    let written = entries
+        .chunks_exact(8)
+        .map(|e| u64::from_le_bytes(e.try_into().unwrap()))
+        .filter(|&e| e & PRESENT != 0 && e & EXCLUSIVE != 0)
+        .count();
+    Some(written as f64 / (last - first) as f64)
 }
 
 #[test]
@@ -657,10 +663,6 @@ fn the_flags_and_masses_of_the_gas_cost_no_memory_even_where_a_gate_stood() {
     // Conserved to the f32 populations' round-off (docs/results/convergence: 6e-7 over a whole run).
     assert!((fluid.liquid_mass() - mass).abs() < 1e-6 * mass, "mass {} against {mass}", fluid.liquid_mass());
     let (flags_share, mass_share) = (written_share(&fluid.state().flags), written_share(&fluid.state().mass));
-    // None where the mapping is shared: the kernel merges neighbouring
-    // anonymous mappings of the same kind, e.g. another test's lattice
-    // allocated at the same time (seen under `cargo test`'s parallel
-    // tests). Run alone, the test reads both (0.062 and 0.008).
     if let (Some(flags), Some(masses)) = (flags_share, mass_share) {
         println!("flags: {flags:.3}, masses: {masses:.3} of their bytes backed");
         assert!(flags < 0.2, "{flags:.3} of the flags backed");
