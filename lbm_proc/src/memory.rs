@@ -101,7 +101,9 @@ unsafe fn advise_whole_pages(ptr: usize, len: usize, advice: libc::c_int) {
 pub fn release_zeros<T: Real>(values: &mut [T], range: std::ops::Range<usize>) {
     let values = &mut values[range];
     debug_assert!(values.iter().all(|v| v.to_f64().to_bits() == 0), "release_zeros over non-zero values");
-    release_zeroed_range(values.as_mut_ptr() as usize, std::mem::size_of_val(values));
+    // SAFETY: a mutably borrowed slice of a `Vec` (the precondition above),
+    // all zero.
+    unsafe { release_zeroed_range(values.as_mut_ptr() as usize, std::mem::size_of_val(values)) };
 }
 
 /// Gives back the whole pages of `values` that hold only zero bytes: the
@@ -115,7 +117,9 @@ pub fn release_zero_pages(values: &mut [u8]) {
     let mut at = first;
     let release = |values: &mut [u8]| {
         debug_assert!(values.iter().all(|&b| b == 0), "release over non-zero bytes");
-        release_zeroed_range(values.as_mut_ptr() as usize, values.len());
+        // SAFETY: a mutably borrowed slice of the caller's `Vec`, checked
+        // zero page by page below.
+        unsafe { release_zeroed_range(values.as_mut_ptr() as usize, values.len()) };
     };
     while at + page <= values.len() {
         let zero = values[at..at + page].iter().all(|&b| b == 0);
@@ -134,13 +138,15 @@ pub fn release_zero_pages(values: &mut [u8]) {
     }
 }
 
-/// MADV_DONTNEED over the whole pages of `len` bytes from `ptr`, a range
-/// of zeros the caller borrows mutably (the callers check that in debug
-/// builds). Elsewhere than Linux: nothing.
-fn release_zeroed_range(ptr: usize, len: usize) {
-    // SAFETY: the callers pass a mutably borrowed slice of a `Vec` (private
-    // anonymous memory) holding only zeros; MADV_DONTNEED makes its pages
-    // read as zeros, which they hold already.
+/// MADV_DONTNEED over the whole pages of `len` bytes from `ptr`.
+/// Elsewhere than Linux: nothing.
+///
+/// # Safety
+/// The range is a slice the caller borrows mutably, of allocator memory
+/// (private anonymous, as a `Vec`'s), holding only zeros: MADV_DONTNEED
+/// makes its pages read as zeros, which they hold already.
+unsafe fn release_zeroed_range(ptr: usize, len: usize) {
+    // SAFETY: the caller's contract above.
     #[cfg(target_os = "linux")]
     unsafe {
         advise_whole_pages(ptr, len, libc::MADV_DONTNEED)

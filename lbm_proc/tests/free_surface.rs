@@ -609,9 +609,23 @@ fn the_memory_of_segments_the_liquid_left_is_given_back_without_changing_a_value
 /// arrays' mapping with (under `cargo test`'s parallel tests, another
 /// test's lattice). A fork by another thread while it reads would make
 /// written pages shared for a moment and count them out: the share can
-/// only read low, never high. `None` off Linux or where pagemap cannot be
-/// read.
+/// only read low, never high; so a buffer written whole must read as
+/// written first (a kernel that does not report the bit would read every
+/// share as 0). `None` off Linux or where pagemap cannot tell.
+#[cfg(target_os = "linux")]
 fn written_share<T>(values: &[T]) -> Option<f64> {
+    let control = vec![1u8; 8 << 20];
+    (pagemap_share(&control)? > 0.9).then_some(())?;
+    pagemap_share(values)
+}
+
+#[cfg(not(target_os = "linux"))]
+fn written_share<T>(_: &[T]) -> Option<f64> {
+    None
+}
+
+#[cfg(target_os = "linux")]
+fn pagemap_share<T>(values: &[T]) -> Option<f64> {
     use std::os::unix::fs::FileExt;
     const PRESENT: u64 = 1 << 63;
     const EXCLUSIVE: u64 = 1 << 56;

@@ -300,6 +300,11 @@ fn run_on_pool(
         Some(path) => {
             let (file, c): (_, MpmCheckpoint) =
                 checkpoint::read_solver(path, "mpm_proc", scene, "its MPM state").map_err(RecordError::from)?;
+            for set in [&c.state.solid.set, &c.state.liquid.set] {
+                set.check_ids().map_err(|why| {
+                    RecordError::from(checkpoint::CheckpointError::Damaged { path: path.to_path_buf(), why })
+                })?;
+            }
             mpm.state = c.state;
             mpm.apply_gate_fixities();
             mpm.restore_pore_pressure_peak(c.pore_pressure_peak);
@@ -550,11 +555,13 @@ fn watchdog(mpm: &Mpm, speed_limit: f64) -> Option<String> {
         for (p, (x, v)) in set.x.iter().zip(&set.v).enumerate() {
             let speed = (v[0] * v[0] + v[1] * v[1]).sqrt();
             if !(x[0].is_finite() && x[1].is_finite() && speed.is_finite()) {
+                let p = set.id_of(p);
                 return Some(format!("{name} point {p} has a non-finite position or velocity"));
             }
             if speed > speed_limit {
                 return Some(format!(
-                    "{name} point {p} at ({:.4}, {:.4}) m moves at {speed:.2} m/s, over half the fastest wave speed ({:.1} m/s)",
+                    "{name} point {} at ({:.4}, {:.4}) m moves at {speed:.2} m/s, over half the fastest wave speed ({:.1} m/s)",
+                    set.id_of(p),
                     x[0],
                     x[1],
                     2.0 * speed_limit
@@ -563,6 +570,7 @@ fn watchdog(mpm: &Mpm, speed_limit: f64) -> Option<String> {
         }
     }
     if let Some(p) = mpm.state.liquid.pressure.iter().position(|p| !p.is_finite()) {
+        let p = mpm.state.liquid.set.id_of(p);
         return Some(format!("liquid point {p} has a non-finite pore pressure"));
     }
     None

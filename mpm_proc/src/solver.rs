@@ -32,7 +32,7 @@ const NODE_CHUNK: usize = 32;
 
 /// Steps between two reorderings of the points into the grid's order
 /// (`Mpm::sort_points`). Every 10, 100 or 1000 steps ran the lab column
-/// equally fast (session 43): points cross an element in ~400 steps.
+/// within 2 % of each other (session 43): points cross an element in ~400 steps.
 const SORT_INTERVAL: u64 = 100;
 
 /// Material and numerical parameters, SI.
@@ -193,12 +193,32 @@ impl PointSet {
         self.id.get(p).copied().unwrap_or(p as u32)
     }
     /// The index of each id: `by_id()[id]` is the point's index now.
+    /// Pre: [`Self::check_ids`] holds (panics on an id out of range).
     pub fn by_id(&self) -> Vec<usize> {
-        let mut index = vec![0; self.len()];
+        let mut index = vec![usize::MAX; self.len()];
         for p in 0..self.len() {
             index[self.id_of(p) as usize] = p;
         }
+        debug_assert!(!index.contains(&usize::MAX), "point ids repeat");
         index
+    }
+    /// Whether the ids are empty (not yet reordered: ids are the indices)
+    /// or each of 0..n once.
+    pub fn check_ids(&self) -> Result<(), String> {
+        if self.id.is_empty() {
+            return Ok(());
+        }
+        if self.id.len() != self.len() {
+            return Err(format!("{} point ids for {} points", self.id.len(), self.len()));
+        }
+        let mut seen = vec![false; self.len()];
+        for &id in &self.id {
+            match seen.get_mut(id as usize) {
+                Some(s) if !*s => *s = true,
+                _ => return Err(format!("point id {id} out of range or repeated ({} points)", self.len())),
+            }
+        }
+        Ok(())
     }
     /// Swaps points `a` and `b` in every per-point array.
     fn swap(&mut self, a: usize, b: usize) {
@@ -215,6 +235,7 @@ impl PointSet {
 /// optional per-point arrays (APIC's affine part, the top load) are empty
 /// when unused.
 fn swap_if_per_point<T>(values: &mut [T], n: usize, a: usize, b: usize) {
+    debug_assert!(values.is_empty() || values.len() == n, "a per-point array of {} for {n} points", values.len());
     if values.len() == n {
         values.swap(a, b);
     }
@@ -698,7 +719,8 @@ impl std::fmt::Debug for Mpm {
 impl Mpm {
     /// A solver over `grid` from `state`. Preconditions: points inside the
     /// box; `fixities.base` sized to the grid's nodes; GIMP shapes under
-    /// APIC (panics otherwise).
+    /// APIC; point ids empty or each point's once (`PointSet::check_ids`;
+    /// panics otherwise).
     pub fn new(params: Params, grid: Grid, state: MpmState, fixities: Fixities) -> Self {
         // Scene validation refuses the pair with the fix; this guards a
         // hand-built `Params` (bilinear D_p is singular on grid lines).
@@ -706,6 +728,11 @@ impl Mpm {
             !(params.apic && grid.shape == ShapeFunctions::Linear),
             "APIC needs GIMP shape functions (mpm.shape_functions = \"gimp\")"
         );
+        for set in [&state.solid.set, &state.liquid.set] {
+            if let Err(e) = set.check_ids() {
+                panic!("Mpm::new: {e} (ids are empty or each point's index when the set was made)");
+            }
+        }
         let nodes = grid.node_count();
         let [row, rows] = grid.node_dims();
         let mut full_volume = vec![0.0; nodes];
@@ -1082,7 +1109,8 @@ impl Mpm {
     fn sort_points(&mut self) {
         let Self { grid, state, solid_scratch, liquid_scratch, sort_done, .. } = self;
         for set in [&mut state.solid.set, &mut state.liquid.set] {
-            if set.id.len() != set.len() {
+            // `Mpm::new` checked the ids: empty or each point's once.
+            if set.id.is_empty() {
                 set.id = (0..set.len() as u32).collect();
             }
         }
@@ -2529,9 +2557,6 @@ impl Mpm {
 /// direction that gets a pressure slope: a spread of a tenth of an element.
 const SPREAD: f64 = 0.01;
 
-/// The axis of a node's wall normal from its `Fixities::contact` vector
-/// (the unit vector into the wall): 0 for a side wall, 1 for the floor,
-/// None off the walls. The x component is read first.
 /// Reorders in place so that index i holds what index `order[i]` held,
 /// through `swap`, one cycle of the permutation at a time (`done`: scratch).
 fn reorder(order: &[u32], done: &mut Vec<bool>, mut swap: impl FnMut(usize, usize)) {
@@ -2551,6 +2576,9 @@ fn reorder(order: &[u32], done: &mut Vec<bool>, mut swap: impl FnMut(usize, usiz
     }
 }
 
+/// The axis of a node's wall normal from its `Fixities::contact` vector
+/// (the unit vector into the wall): 0 for a side wall, 1 for the floor,
+/// None off the walls. The x component is read first.
 fn wall_normal_axis(into: [f64; 2]) -> Option<usize> {
     if into[0] != 0.0 {
         Some(0)
@@ -2625,7 +2653,31 @@ fn point_velocity_at(set: &PointSet, p: usize, at: [f64; 2], apic: bool) -> [f64
 
 #[cfg(test)]
 mod tests {
-    use super::{plane, slope_limiter, ElementScratch};
+    use super::{plane, reorder, slope_limiter, ElementScratch, PointSet};
+
+    #[test]
+    fn reorder_puts_what_order_names_at_each_index() {
+        // Fixed points, a 2-cycle and a 4-cycle: new[i] = old[order[i]].
+        let order = [0u32, 2, 1, 5, 3, 6, 4];
+        let old: Vec<u32> = (10..17).collect();
+        let mut values = old.clone();
+        let mut done = Vec::new();
+        reorder(&order, &mut done, |a, b| values.swap(a, b));
+        let expected: Vec<u32> = order.iter().map(|&k| old[k as usize]).collect();
+        assert_eq!(values, expected);
+    }
+
+    #[test]
+    fn point_ids_are_empty_or_each_point_once() {
+        let set = |id: Vec<u32>| PointSet { x: vec![[0.0; 2]; 3], id, ..Default::default() };
+        assert!(set(vec![]).check_ids().is_ok());
+        assert!(set(vec![2, 0, 1]).check_ids().is_ok());
+        assert_eq!(set(vec![2, 0, 1]).by_id(), vec![1, 2, 0]);
+        assert_eq!(set(vec![]).by_id(), vec![0, 1, 2]);
+        assert!(set(vec![0, 1]).check_ids().is_err(), "too few");
+        assert!(set(vec![0, 0, 1]).check_ids().is_err(), "repeated");
+        assert!(set(vec![0, 1, 3]).check_ids().is_err(), "out of range");
+    }
 
     /// One element of area 1 with the given grain and water volumes.
     fn element(grains: f64, water: f64) -> ElementScratch {
