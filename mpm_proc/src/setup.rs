@@ -84,6 +84,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         damping: spec.damping,
         wall_friction: spec.wall_friction,
         unilateral_walls: spec.wall_contact == schemas::scene::MpmWallContact::Unilateral,
+        wall_release_speed: spec.wall_release_speed,
         friction_reaches_next_node: spec.wall_friction_reach == schemas::scene::MpmWallFrictionReach::NextNode,
         wall_points_take_grid_tangent: spec.wall_tangent_update == schemas::scene::MpmWallTangentUpdate::Grid,
         free_surface_fill: spec.free_surface_fill,

@@ -69,6 +69,11 @@ pub struct Params {
     /// pushes into the wall (`Mpm::update_wall_contacts`). false: they
     /// hold both ways.
     pub unilateral_walls: bool,
+    /// `mpm.wall_release_speed`, m/s: how fast the mapped mixture at a held
+    /// wall component must move off the wall for `release_walls_moved_off`
+    /// to release it in the step. None: g Δt, with the gravity in effect
+    /// (the gravity phase's, then the run's).
+    pub wall_release_speed: Option<f64>,
     /// `mpm.wall_friction_reach = "next_node"`: the friction impulse a
     /// wall node's own mass cannot take passes to the next node off the
     /// wall (`Mpm::apply_wall_friction`). false: it acts on the wall node only.
@@ -1620,7 +1625,8 @@ impl Mpm {
     /// material rests on from releasing it: under APIC it is ~1e-5 m/s.)
     fn release_walls_moved_off(&mut self) {
         let tol = self.mass_tolerance;
-        let bar = self.params.dt * self.params.gravity[0].hypot(self.params.gravity[1]);
+        let p = &self.params;
+        let bar = p.wall_release_speed.unwrap_or_else(|| p.dt * p.gravity[0].hypot(p.gravity[1]));
         let gated = |node: usize, d: usize, gates: &[Vec<usize>], held: &[bool]| {
             d == 0 && gates.iter().zip(held).any(|(g, &h)| h && g.contains(&node))
         };

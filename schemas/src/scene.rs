@@ -421,6 +421,16 @@ pub struct MpmSpec {
     /// either.
     #[serde(default)]
     pub wall_contact: MpmWallContact,
+    /// Under `wall_contact = "unilateral"`, m/s: a held wall component is
+    /// released for the step, right after the map, when its mixture's
+    /// mapped velocity points off the wall faster than this (a tolerance
+    /// above the round-off of a resting deposit's mapped velocity, ~1e-5
+    /// m/s); the solve's own test (its end velocity off the wall) asks no
+    /// speed and releases it from the next step. Default: g Δt, the speed
+    /// gravity gives in one step. It moves the thin sheet's and the
+    /// liquid's fronts (docs/mpm.md, "The release speed").
+    #[serde(default)]
+    pub wall_release_speed: Option<f64>,
     /// Where a frictional wall's Coulomb impulse μ Δt N acts: `wall_node`
     /// (default: on the wall node alone, which it stops at most) or
     /// `next_node` (what the wall node's own mass cannot take passes to the
@@ -1817,6 +1827,9 @@ fn check_mpm_values(v: &mut Validator, m: &MpmSpec) {
     v.closed_open("mpm.gravity_phase_damping", m.gravity_phase_damping, 0.0, 1.0);
     v.positive("mpm.gravity_phase_rest_speed", m.gravity_phase_rest_speed);
     v.at_least("mpm.top_load", m.top_load, 0.0);
+    if let Some(speed) = m.wall_release_speed {
+        v.at_least("mpm.wall_release_speed", speed, 0.0);
+    }
 }
 
 /// What a scene must be for the 2D MPM: one soil, one liquid, x–z gravity,

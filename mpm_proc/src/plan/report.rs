@@ -375,9 +375,12 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
         format!(
             "{fixed}; {side} on {}; {}; {}; {}; y faces unused; local damping {}; top load {} Pa",
             if rollers.is_empty() { "none".to_string() } else { rollers.join(" ") },
-            match m.wall_contact {
-                MpmWallContact::Bilateral => "walls hold the normal velocity both ways",
-                MpmWallContact::Unilateral => "walls let go of material moving off them (unilateral)",
+            match (m.wall_contact, m.wall_release_speed) {
+                (MpmWallContact::Bilateral, _) => "walls hold the normal velocity both ways".to_string(),
+                (MpmWallContact::Unilateral, None) =>
+                    "walls let go of material moving off them faster than g dt (unilateral)".to_string(),
+                (MpmWallContact::Unilateral, Some(v)) =>
+                    format!("walls let go of material moving off them faster than {v} m/s (unilateral)"),
             },
             match m.wall_friction_reach {
                 MpmWallFrictionReach::WallNode => "wall friction on the wall nodes",
