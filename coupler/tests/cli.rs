@@ -206,6 +206,23 @@ fn check_reports_the_mpm_column() {
         text.contains("mpm.pic_fraction = 0 and mpm.xpic_order = 2 are unused under mpm.transfer = \"aflip\""),
         "{text}"
     );
+    // A release speed set for walls that hold both ways is named as unused.
+    let out = coupler()
+        .args([
+            "check",
+            "scenes/ceccato2020/mpm_sat_h060.toml",
+            "--set",
+            "mpm.wall_contact=\"bilateral\"",
+            "--set",
+            "mpm.wall_release_speed=1e-4",
+        ])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("mpm.wall_release_speed = 0.0001 is unused under mpm.wall_contact = \"bilateral\""),
+        "{text}"
+    );
 }
 
 /// A saturated column topped inside an element (two of the top element's

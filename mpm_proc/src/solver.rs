@@ -1617,12 +1617,15 @@ impl Mpm {
 
     /// Unilateral walls (`Params::unilateral_walls`), after the map: a
     /// held wall component whose mapped mixture moves off the wall faster
-    /// than gravity changes its velocity in a step is released for this
-    /// step (its nodal velocities unmasked), so that material thrown off a
-    /// wall leaves with its momentum; the test after the solve
+    /// than `Params::wall_release_speed` (default g Δt, what gravity
+    /// changes a velocity by in a step) is released for this step (its
+    /// nodal velocities unmasked), so that material thrown off a wall
+    /// leaves with its momentum; the test after the solve
     /// (`update_wall_contacts`) holds it again if it turns back into the
-    /// wall. (The bar keeps the mapped velocity's round-off at a wall the
-    /// material rests on from releasing it: under APIC it is ~1e-5 m/s.)
+    /// wall. Skipped where liquid may hold tension (`Params::cavitation` >
+    /// 0): the test after the solve sees its pull. (The bar keeps the
+    /// mapped velocity's round-off at a wall the material rests on from
+    /// releasing it: under APIC it is ~1e-5 m/s.)
     fn release_walls_moved_off(&mut self) {
         let tol = self.mass_tolerance;
         let p = &self.params;

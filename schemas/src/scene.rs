@@ -426,9 +426,11 @@ pub struct MpmSpec {
     /// mapped velocity points off the wall faster than this (a tolerance
     /// above the round-off of a resting deposit's mapped velocity, ~1e-5
     /// m/s); the solve's own test (its end velocity off the wall) asks no
-    /// speed and releases it from the next step. Default: g Δt, the speed
-    /// gravity gives in one step. It moves the thin sheet's and the
-    /// liquid's fronts (docs/mpm.md, "The release speed").
+    /// speed and releases it from the next step. Where liquid may hold
+    /// tension (`cavitation_threshold` > 0) only the solve's test acts.
+    /// Default: g Δt, the speed gravity gives in one step. It moves the
+    /// thin sheet's and the liquid's fronts (docs/mpm.md, "The release
+    /// speed").
     #[serde(default)]
     pub wall_release_speed: Option<f64>,
     /// Where a frictional wall's Coulomb impulse μ Δt N acts: `wall_node`

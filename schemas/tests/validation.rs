@@ -266,6 +266,8 @@ const BAD_MPM: &[(&str, &str, &str)] = &[
     ("mpm.gravity_phase_rest_speed=0", "mpm.gravity_phase_rest_speed", "> 0"),
     ("mpm.top_load=-5", "mpm.top_load", ">= 0"),
     ("mpm.wall_release_speed=-1e-4", "mpm.wall_release_speed", ">= 0"),
+    ("mpm.wall_release_speed=nan", "mpm.wall_release_speed", ">= 0"),
+    ("mpm.wall_release_speed=inf", "mpm.wall_release_speed", ">= 0"),
     ("mpm.shape_functions=\"cpdi\"", "mpm.shape_functions", "unknown variant"),
     ("mpm.transfer=\"pic\"", "mpm.transfer", "unknown variant"),
     ("mpm.shape_functions=\"linear\"", "mpm.transfer", "unstable when points cross grid lines"),

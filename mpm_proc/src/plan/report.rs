@@ -300,6 +300,11 @@ fn numerics_warnings(scene: &Scene, ppe: usize, p: &mut Plan) {
     if let Some(unused) = schemas::scene::unused_flip_keys(&m) {
         p.warn(unused);
     }
+    if let (Some(v), MpmWallContact::Bilateral) = (m.wall_release_speed, m.wall_contact) {
+        p.warn(format!(
+            "mpm.wall_release_speed = {v} is unused under mpm.wall_contact = \"bilateral\" (walls hold both ways); remove it or set wall_contact = \"unilateral\""
+        ));
+    }
     // A liquid top inside an element: that element starts part-filled, its
     // filling ratio (the water's share of the space its grains leave) f n /
     // (1 − f (1 − n)) for a filled share f of saturated soil, f alone above
@@ -378,9 +383,11 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
             match (m.wall_contact, m.wall_release_speed) {
                 (MpmWallContact::Bilateral, _) => "walls hold the normal velocity both ways".to_string(),
                 (MpmWallContact::Unilateral, None) =>
-                    "walls let go of material moving off them faster than g dt (unilateral)".to_string(),
-                (MpmWallContact::Unilateral, Some(v)) =>
-                    format!("walls let go of material moving off them faster than {v} m/s (unilateral)"),
+                    "walls let go of material moving off them (unilateral: at the map above g dt, else a step later)"
+                        .to_string(),
+                (MpmWallContact::Unilateral, Some(v)) => format!(
+                    "walls let go of material moving off them (unilateral: at the map above {v} m/s, else a step later)"
+                ),
             },
             match m.wall_friction_reach {
                 MpmWallFrictionReach::WallNode => "wall friction on the wall nodes",
