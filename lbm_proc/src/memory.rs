@@ -22,7 +22,7 @@ const ADVISE_FROM_BYTES: usize = 8 << 20;
 /// read). Every range given back must be whole pages of this size: a
 /// kernel rounds a release's length up to its own page, which would clear
 /// values past the range.
-fn page_size() -> usize {
+pub fn page_size() -> usize {
     static PAGE: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
     *PAGE.get_or_init(|| {
         #[cfg(unix)]

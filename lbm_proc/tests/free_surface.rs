@@ -544,7 +544,7 @@ fn free_falling_slab_stays_at_the_gas_pressure() {
 fn backed_share<T>(values: &[T]) -> Option<f64> {
     let bytes = std::mem::size_of_val(values);
     let pages = lbm_proc::memory::resident_pages(values.as_ptr() as *const u8, bytes)?;
-    Some(pages as f64 * 4096.0 / bytes as f64)
+    Some((pages * lbm_proc::memory::page_size()) as f64 / bytes as f64)
 }
 
 #[test]
@@ -629,8 +629,7 @@ fn pagemap_share<T>(values: &[T]) -> Option<f64> {
     use std::os::unix::fs::FileExt;
     const PRESENT: u64 = 1 << 63;
     const EXCLUSIVE: u64 = 1 << 56;
-    // SAFETY: sysconf only reads a system constant.
-    let page = usize::try_from(unsafe { libc::sysconf(libc::_SC_PAGESIZE) }).ok().filter(|&p| p > 0)?;
+    let page = lbm_proc::memory::page_size();
     let bytes = std::mem::size_of_val(values);
     let (start, end) = (values.as_ptr() as usize, values.as_ptr() as usize + bytes);
     // Whole pages inside the range only: the end pages may hold neighbours.
