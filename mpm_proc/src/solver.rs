@@ -640,6 +640,9 @@ pub struct Mpm {
     /// Largest pore pressure at the end of any step since the recorder last
     /// took it (`take_pore_pressure_peak`), Pa: a diagnostic, not state.
     pore_pressure_peak: f64,
+    /// What the map's release test did since the last
+    /// `take_wall_release_stats`: a diagnostic, not state.
+    wall_release_stats: WallReleaseStats,
     /// The liquid's impulse on the solid since the recorder last took it
     /// (`take_liquid_impulse`), N s/m along [x, z], and the time it covers, s:
     /// a diagnostic, not state.
@@ -652,6 +655,19 @@ pub struct Mpm {
     implicit: Option<Box<ImplicitPressure>>,
     /// `sort_points`' scratch: which points the reordering has placed.
     sort_done: Vec<bool>,
+}
+
+/// What the map's release test of unilateral walls
+/// (`Mpm::release_walls_moved_off`) did over an interval of steps.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct WallReleaseStats {
+    /// Wall components released right after the map, summed over the steps.
+    pub released_at_map: u64,
+    /// The largest mapped speed off the wall, m/s, of a held component with
+    /// mass that the test kept held (at most `Params::wall_release_speed`;
+    /// 0 if none moved off): at a wall the material rests on, the mapped
+    /// velocity's round-off.
+    pub largest_speed_kept: f64,
 }
 
 /// The liquid's impulse on the solid node by node, split into the parts
@@ -806,6 +822,7 @@ impl Mpm {
             timing: false,
             wall_forces: WallForces::default(),
             pore_pressure_peak: 0.0,
+            wall_release_stats: WallReleaseStats::default(),
             liquid_impulse: LiquidImpulse::default(),
             liquid_force_field: None,
             implicit: None,
@@ -912,6 +929,12 @@ impl Mpm {
     /// call (0 before any liquid pressure), and starts a new interval.
     pub fn take_pore_pressure_peak(&mut self) -> f64 {
         std::mem::take(&mut self.pore_pressure_peak)
+    }
+
+    /// What the map's release test (`Params::wall_release_speed`) did
+    /// since the last call, and starts a new interval.
+    pub fn take_wall_release_stats(&mut self) -> WallReleaseStats {
+        std::mem::take(&mut self.wall_release_stats)
     }
 
     /// The liquid's impulse on the solid since the last
@@ -1624,8 +1647,13 @@ impl Mpm {
     /// (`update_wall_contacts`) holds it again if it turns back into the
     /// wall. Skipped where liquid may hold tension (`Params::cavitation` >
     /// 0): the test after the solve sees its pull. (The bar keeps the
-    /// mapped velocity's round-off at a wall the material rests on from
-    /// releasing it: under APIC it is ~1e-5 m/s.)
+    /// mapped velocity at a wall the material rests on from releasing it,
+    /// which the implicit pressure would then solve with the wall open:
+    /// a layer sliding on the floor keeps its hydrostatic pore pressure
+    /// from ~½ g Δt up, at the scenes' step and at a quarter of it, and
+    /// loses 14 % of it at g Δt/20 (session 44, docs/mpm.md "The release
+    /// speed"); a column at rest behind walls is held down to round-off,
+    /// ≤ 2.5e-8 m/s.) Counts into `Mpm::wall_release_stats`.
     fn release_walls_moved_off(&mut self) {
         let tol = self.mass_tolerance;
         let p = &self.params;
@@ -1634,6 +1662,7 @@ impl Mpm {
             d == 0 && gates.iter().zip(held).any(|(g, &h)| h && g.contains(&node))
         };
         let touched = self.touched_range();
+        let stats = &mut self.wall_release_stats;
         for (w, released) in self.fixities.walls.iter().zip(self.state.walls_released.iter_mut()) {
             let (node, d) = (w.node, w.axis);
             if *released || !touched(node) {
@@ -1645,13 +1674,19 @@ impl Mpm {
                 // test after the solve, which sees its pull, decides.
                 continue;
             }
-            if (s.momentum_s[d] + s.momentum_l[d]) * w.into >= -bar * (s.mass_s + s.mass_l) {
+            let mass = s.mass_s + s.mass_l;
+            let speed_off = -(s.momentum_s[d] + s.momentum_l[d]) * w.into;
+            if speed_off <= bar * mass {
+                if mass > tol {
+                    stats.largest_speed_kept = stats.largest_speed_kept.max(speed_off / mass);
+                }
                 continue;
             }
             if gated(node, d, &self.fixities.gates, &self.state.gates_held) {
                 continue;
             }
             *released = true;
+            stats.released_at_map += 1;
             self.mask[node][d] = 1.0;
             let vs = if s.mass_s > tol { s.momentum_s[d] / s.mass_s } else { 0.0 };
             let vl = if s.mass_l > tol { s.momentum_l[d] / s.mass_l } else { 0.0 };

@@ -128,6 +128,56 @@ fn a_mapped_velocity_off_the_wall_releases_it_above_the_release_speed() {
     assert!(low > 0.9, "the solve's release did not let the block go (P_x / (M v0) down to {low})");
 }
 
+/// A saturated column 0.04 m wide (the lab column's section; 4 mm
+/// elements, 12 points per element, K0 stresses, the soil to 0.06 m, the
+/// water to `water`) between two unilateral walls on a frictional floor,
+/// after its gravity phase, with the `[mpm]` lines `keys`: the map's
+/// release statistics over `steps` steps, the fastest point at their end,
+/// m/s, and g Δt, m/s.
+fn column_at_rest(water: f64, keys: &str, steps: usize) -> (mpm_proc::solver::WallReleaseStats, f64, f64) {
+    let lines = format!("floor = \"frictional\"\nwall_friction = 0.577\nwall_contact = \"unilateral\"\n{keys}");
+    let scene = common::column(0.04, 0.06, 0.10, Some(water), 2.5e-3, &lines, &[]);
+    let mut mpm = build(&scene).unwrap().mpm;
+    gravity_phase(&scene, &mut mpm, &AtomicBool::new(false), &mut Quiet);
+    mpm.take_wall_release_stats();
+    for _ in 0..steps {
+        mpm.step();
+    }
+    let fastest = mpm.state.solid.set.max_speed().max(mpm.state.liquid.set.max_speed());
+    let g_dt = mpm.params.dt * mpm.params.gravity[0].hypot(mpm.params.gravity[1]);
+    (mpm.take_wall_release_stats(), fastest, g_dt)
+}
+
+#[test]
+fn columns_at_rest_stay_held_and_need_a_release_speed() {
+    // At rest the mixture's mapped velocity off the walls it rests on is
+    // what the gravity phase leaves (session 44): ≤ 5e-19 m/s for the
+    // saturated column under the implicit pore pressure (round-off),
+    // 1.4e-11 with free water above it, 2.5e-8 m/s with free water under
+    // the explicit pressure. Under the default release speed (g Δt, 2e-4
+    // m/s here) no wall component is released and all three stay at rest
+    // (their gravity phases end below 1e-4 m/s). With no bar the round-off
+    // releases the walls at the map, the implicit pressure is solved with
+    // them open, and the column starts moving (28 000 releases and 1.8e-2
+    // m/s within 1000 steps with free water, measured).
+    let explicit = "pressure_scheme = \"explicit\"\n";
+    for (water, keys) in [(0.06, ""), (0.076, ""), (0.076, explicit)] {
+        let (held, fastest, g_dt) = column_at_rest(water, keys, 1000);
+        eprintln!("water to {water} m {keys:?}: {held:?}, fastest point {fastest:.2e} m/s");
+        assert_eq!(held.released_at_map, 0, "walls released at rest: {held:?}");
+        assert!(
+            held.largest_speed_kept < 1e-3 * g_dt,
+            "a resting wall's mapped speed off it ({:.1e} m/s) is within 1000x of g dt ({g_dt:.1e} m/s)",
+            held.largest_speed_kept
+        );
+        assert!(fastest < 1e-4, "the column at rest moves at {fastest:.2e} m/s");
+    }
+    let (loose, moved, _) = column_at_rest(0.076, "wall_release_speed = 0.0\n", 1000);
+    eprintln!("no bar: {loose:?}, fastest point {moved:.2e} m/s");
+    assert!(loose.released_at_map > 100, "round-off did not release the walls without a bar: {loose:?}");
+    assert!(moved > 1e-3, "released by round-off, the column still rests ({moved:.2e} m/s)");
+}
+
 #[test]
 fn a_unilateral_wall_stops_a_block_thrown_at_it_and_lets_it_rebound() {
     // Thrown at the back wall from 4 mm (two elements) at 0.1 m/s. The
