@@ -433,8 +433,9 @@ pub struct MpmSpec {
     /// (below, its step-to-step noise releases the floor, which the
     /// implicit pressure then solves as open); columns at rest stay held
     /// down to 1e-6 m/s. It moves the thin sheet's and the liquid's
-    /// fronts: on the lab column, at 1e-7 m/s or less, the 0.5 % front is
-    /// 9 % and the liquid front 16 % shorter.
+    /// fronts: on the lab column, at 1e-7 m/s or less (where the floor's
+    /// noise releases it and the pore pressure under the front drops),
+    /// the 0.5 % front is 9 % and the liquid front 16 % shorter.
     #[serde(default)]
     pub wall_release_speed: Option<f64>,
     /// Where a frictional wall's Coulomb impulse μ Δt N acts: `wall_node`
