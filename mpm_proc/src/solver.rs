@@ -1330,6 +1330,26 @@ impl Mpm {
         (r0..=r1).flat_map(move |r| (c0..=c1).map(move |c| r * row + c))
     }
 
+    /// The nodes from the first to the last active one (`active_nodes`),
+    /// whole rows between: a contiguous range of node indices.
+    fn active_node_range(&self) -> std::ops::Range<usize> {
+        let row = self.grid.node_dims()[0];
+        let ((r0, r1), (c0, c1)) = (self.rows, self.columns);
+        r0 * row + c0..r1 * row + c1 + 1
+    }
+
+    /// The elements of the rows the touched nodes span (`Mpm::rows`): every
+    /// element a point lies in and every one `assemble_pressure_problem`
+    /// sets, as a contiguous range of element indices.
+    fn touched_element_range(&self) -> std::ops::Range<usize> {
+        let (nx, nz) = (self.grid.elements[0], self.grid.elements[1]);
+        let (r0, r1) = self.rows;
+        // Node row r (ghost row 0) is the bottom of element row r − 1.
+        let first = (r0.max(1) - 1).min(nz);
+        let end = r1.min(nz + 1).saturating_sub(1).max(first);
+        first * nx..end * nx
+    }
+
     /// Runs `f(node)` over the touched node range in parallel, writing `out[node]`.
     fn for_active_nodes<T: Send>(&self, out: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
         let row = self.grid.node_dims()[0];
@@ -2305,9 +2325,10 @@ impl Mpm {
     /// its free points' mean instead: a saturated layer's given pressure
     /// (`Params::hydrostatic_surface`) when it enters the solve, 0 otherwise.
     fn pressure_reference(&mut self) {
+        let touched_elements = self.touched_element_range();
         let Some(imp) = self.implicit.as_mut() else { return };
         let l = &self.state.liquid;
-        imp.reference.fill([0.0; 4]);
+        imp.reference[touched_elements].fill([0.0; 4]);
         for (p, &e) in self.liquid_scratch.element.iter().enumerate() {
             let k = if l.free_surface[p] { 2 } else { 0 };
             let (w, r) = (l.set.volume[p], &mut imp.reference[e as usize]);
@@ -2413,11 +2434,13 @@ impl Mpm {
     /// where there is no solid), then S p = C p̄ − D v* by Jacobi-PCG.
     fn solve_pressure(&mut self) {
         let nodes = self.active_nodes();
+        let node_range = self.active_node_range();
         let Some(imp) = self.implicit.as_mut() else { return };
         let (dt, tol) = (self.params.dt, self.mass_tolerance);
         let [vs, vl] = &mut imp.velocity;
-        vs.fill([0.0; 2]);
-        vl.fill([0.0; 2]);
+        // Read at the corners of the set elements and at active nodes alone.
+        vs[node_range.clone()].fill([0.0; 2]);
+        vl[node_range].fill([0.0; 2]);
         for node in nodes {
             let (s, a, mask) = (&self.sums[node], &self.accel[node].a, self.mask[node]);
             for d in 0..2 {
@@ -2466,13 +2489,15 @@ impl Mpm {
     /// At a node without solid the whole column's force is the liquid's.
     fn correct_velocities(&mut self) {
         let nodes = self.active_nodes();
+        let node_range = self.active_node_range();
         let Some(imp) = self.implicit.as_mut() else { return };
         let p = &self.params;
         let (dt, alpha, mu, tol) = (p.dt, p.damping, p.wall_friction, self.mass_tolerance);
         let [vs, vl] = &mut imp.velocity;
         imp.solver.correct(&imp.problem, &imp.pressure, vs, vl);
         let [fps, fpl] = &mut imp.pressure_force;
-        imp.problem.pressure_forces(&imp.pressure, fps, fpl);
+        // Read at active nodes alone (here, `update_wall_contacts`, `liquid_force_on_solid`).
+        imp.problem.pressure_forces_of_set_elements(&imp.pressure, node_range, fps, fpl);
         for node in nodes {
             let s = &self.sums[node];
             let (has_s, has_l) = (s.mass_s > tol, s.mass_l > tol);
