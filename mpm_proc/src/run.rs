@@ -26,8 +26,8 @@ use crate::setup::{build, MpmSetup, SetupError};
 use crate::solver::{LiquidImpulse, Mpm, MpmState, PointSet};
 
 /// Version of the `/mpm/state` bincode layout (3: `MpmState::walls_released`;
-/// 4: `PointSet::id`).
-pub const STATE_VERSION: u32 = 4;
+/// 4: `PointSet::id`; 5: `MpmState::wall_push`).
+pub const STATE_VERSION: u32 = 5;
 
 /// Full state at a frame (`/mpm/state`): enough to continue the run bit for bit.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]

@@ -126,8 +126,16 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         gates.push((gate.name.clone(), gate.release_time));
     }
     let gates_held = vec![true; s.gates.len()];
-    // Mpm::new (apply_gate_fixities) sizes walls_released.
-    let state = MpmState { time: 0.0, steps: 0, gates_held, walls_released: Vec::new(), solid, liquid: liq };
+    // Mpm::new (apply_gate_fixities) sizes walls_released and wall_push.
+    let state = MpmState {
+        time: 0.0,
+        steps: 0,
+        gates_held,
+        walls_released: Vec::new(),
+        wall_push: Vec::new(),
+        solid,
+        liquid: liq,
+    };
     let mut notes = describe(&spec, &grid, &state, dt, c_max);
     if soil.is_some() && liquid.is_some() {
         notes.push(format!(

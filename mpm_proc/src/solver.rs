@@ -69,10 +69,10 @@ pub struct Params {
     /// pushes into the wall (`Mpm::update_wall_contacts`). false: they
     /// hold both ways.
     pub unilateral_walls: bool,
-    /// `mpm.wall_release_speed`, m/s: how fast the mapped mixture at a held
-    /// wall component must move off the wall for `release_walls_moved_off`
-    /// to release it in the step. None: g Δt, with the gravity in effect
-    /// (the gravity phase's, then the run's).
+    /// `mpm.wall_release_speed`, m/s: how fast the mixture at a held wall
+    /// component must be set to move off the wall within the step (its
+    /// mapped momentum and the last step's force) for
+    /// `release_walls_moved_off` to release it in the step. None: 0.
     pub wall_release_speed: Option<f64>,
     /// `mpm.wall_friction_reach = "next_node"`: the friction impulse a
     /// wall node's own mass cannot take passes to the next node off the
@@ -309,6 +309,13 @@ pub struct MpmState {
     /// released for the next step (the material there moved off the wall);
     /// empty otherwise.
     pub walls_released: Vec<bool>,
+    /// Under unilateral walls, each of `Fixities::walls`' component of the
+    /// last step's undamped force on the mixture there (both phases, the
+    /// implicit pore pressure's included), N/m, along the wall's inward
+    /// normal; 0 where the map did not touch it or it had no mass. What
+    /// `Mpm::release_walls_moved_off` expects the wall to push against in
+    /// the step; empty otherwise.
+    pub wall_push: Vec<f64>,
 }
 
 /// Per-node sums of the first map.
@@ -885,6 +892,7 @@ impl Mpm {
         // checkpoint) whose wall count would leave walls out of the zip.
         let walls = if self.params.unilateral_walls { self.fixities.walls.len() } else { 0 };
         self.state.walls_released.resize(walls, false);
+        self.state.wall_push.resize(walls, 0.0);
         self.mask.copy_from_slice(&self.fixities.base);
         self.full_volume.copy_from_slice(&self.box_volume);
         self.hold_walls_and_gates();
@@ -1659,31 +1667,34 @@ impl Mpm {
     }
 
     /// Unilateral walls (`Params::unilateral_walls`), after the map: a
-    /// held wall component whose mapped mixture moves off the wall faster
-    /// than `Params::wall_release_speed` (default g Δt, what gravity
-    /// changes a velocity by in a step) is released for this step (its
-    /// nodal velocities unmasked), so that material thrown off a wall
-    /// leaves with its momentum; the test after the solve
-    /// (`update_wall_contacts`) holds it again if it turns back into the
-    /// wall. Skipped where liquid may hold tension (`Params::cavitation` >
-    /// 0): the test after the solve sees its pull. (The bar keeps the
-    /// mapped velocity at a wall the material rests on from releasing it,
-    /// which the implicit pressure would then solve with the wall open:
-    /// a layer sliding on the floor keeps its hydrostatic pore pressure
-    /// from ~½ g Δt up, at the scenes' step and at a quarter of it, and
-    /// loses 14 % of it at g Δt/20 (session 44, docs/mpm.md "The release
-    /// speed"); a column at rest behind walls is held down to round-off,
-    /// ≤ 2.5e-8 m/s.) Counts into `Mpm::wall_release_stats`.
+    /// held wall component whose mixture would move off the wall within
+    /// the step, its mapped momentum plus Δt times the force it felt in
+    /// the last step (`MpmState::wall_push`) pointing off the wall faster
+    /// than `Params::wall_release_speed` (default 0) per unit mass, is
+    /// released for this step (its nodal velocities unmasked), so that
+    /// material thrown off a wall leaves with its momentum; the test after
+    /// the solve (`update_wall_contacts`) holds it again if it turns back
+    /// into the wall. Skipped where liquid may hold tension
+    /// (`Params::cavitation` > 0): the test after the solve sees its pull.
+    /// The force is what keeps a layer resting on a wall held: its mapped
+    /// velocity off the wall carries its step-to-step noise, of order
+    /// g Δt, and a release on that alone opens the wall in the implicit
+    /// pressure's solve (a layer sliding on the floor kept 0.86 of its
+    /// hydrostatic pore pressure with the velocity alone tested against
+    /// g Δt/20, 0.96 with the force; session 44, docs/mpm.md "The release
+    /// speed"). Counts into `Mpm::wall_release_stats`.
     fn release_walls_moved_off(&mut self) {
         let tol = self.mass_tolerance;
-        let p = &self.params;
-        let bar = p.wall_release_speed.unwrap_or_else(|| p.dt * p.gravity[0].hypot(p.gravity[1]));
+        let (bar, dt) = (self.params.wall_release_speed.unwrap_or(0.0), self.params.dt);
         let gated = |node: usize, d: usize, gates: &[Vec<usize>], held: &[bool]| {
             d == 0 && gates.iter().zip(held).any(|(g, &h)| h && g.contains(&node))
         };
         let touched = self.touched_range();
         let stats = &mut self.wall_release_stats;
-        for (w, released) in self.fixities.walls.iter().zip(self.state.walls_released.iter_mut()) {
+        let state = &mut self.state;
+        for ((w, released), push) in
+            self.fixities.walls.iter().zip(state.walls_released.iter_mut()).zip(&state.wall_push)
+        {
             let (node, d) = (w.node, w.axis);
             if *released || !touched(node) {
                 continue;
@@ -1695,14 +1706,16 @@ impl Mpm {
                 continue;
             }
             let mass = s.mass_s + s.mass_l;
-            let speed_off = -(s.momentum_s[d] + s.momentum_l[d]) * w.into;
-            if speed_off <= bar * mass {
-                if mass > tol {
-                    stats.largest_speed_kept = stats.largest_speed_kept.max(speed_off / mass);
-                }
+            if mass <= tol {
+                // Nothing there to let go (`update_wall_contacts` holds it).
                 continue;
             }
-            if gated(node, d, &self.fixities.gates, &self.state.gates_held) {
+            let speed_off = -(s.momentum_s[d] + s.momentum_l[d]) * w.into - dt * push;
+            if speed_off <= bar * mass {
+                stats.largest_speed_kept = stats.largest_speed_kept.max(speed_off / mass);
+                continue;
+            }
+            if gated(node, d, &self.fixities.gates, &state.gates_held) {
                 continue;
             }
             *released = true;
@@ -1747,12 +1760,16 @@ impl Mpm {
         // it cavitates there (a corner's share is h/2: it holds on longer).
         let tension_cap = self.params.cavitation * self.grid.h;
         let touched = self.touched_range();
-        for (w, released) in self.fixities.walls.iter().zip(self.state.walls_released.iter_mut()) {
+        let state = &mut self.state;
+        for ((w, released), push) in
+            self.fixities.walls.iter().zip(state.walls_released.iter_mut()).zip(state.wall_push.iter_mut())
+        {
             let (node, d, into) = (w.node, w.axis, w.into);
             let s = &self.sums[node];
             let masses = [if s.mass_s > tol { s.mass_s } else { 0.0 }, if s.mass_l > tol { s.mass_l } else { 0.0 }];
             if !touched(node) || masses == [0.0; 2] {
                 *released = false;
+                *push = 0.0;
                 continue;
             }
             let u = &mut self.accel[node];
@@ -1764,6 +1781,7 @@ impl Mpm {
                 force += fps[node][d] + fpl[node][d];
                 liquid += fps[node][d] + fpl[node][d];
             }
+            *push = force * into;
             let tension = if masses[1] > 0.0 { -liquid * into } else { 0.0 };
             let adheres = tension > 0.0 && tension < tension_cap;
             if self.mask[node][d] == 0.0 {

@@ -383,10 +383,10 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
             match (m.wall_contact, m.wall_release_speed) {
                 (MpmWallContact::Bilateral, _) => "walls hold the normal velocity both ways".to_string(),
                 (MpmWallContact::Unilateral, None) =>
-                    "walls let go of material moving off them (unilateral: at the map above g dt, else a step later)"
+                    "walls let go of material moving off them (unilateral: at the map where its momentum and the last step's force carry it off, else a step later)"
                         .to_string(),
                 (MpmWallContact::Unilateral, Some(v)) => format!(
-                    "walls let go of material moving off them (unilateral: at the map above {v} m/s, else a step later)"
+                    "walls let go of material moving off them (unilateral: at the map where its momentum and the last step's force carry it off faster than {v} m/s, else a step later)"
                 ),
             },
             match m.wall_friction_reach {
