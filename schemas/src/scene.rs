@@ -422,20 +422,16 @@ pub struct MpmSpec {
     #[serde(default)]
     pub wall_contact: MpmWallContact,
     /// Under `wall_contact = "unilateral"`, m/s: a held wall component is
-    /// released for the step, right after the map, when its mixture's
-    /// mapped velocity points off the wall faster than this; the solve's
-    /// own test (its end velocity off the wall) asks no speed and releases
-    /// it from the next step. Where liquid may hold tension
-    /// (`cavitation_threshold` > 0) only the solve's test acts. Default:
-    /// g Δt, the speed off a floor that gravity alone reverses within the
-    /// step. Measured (docs/mpm.md, "The release speed"): a layer sliding
-    /// on the floor keeps its hydrostatic pore pressure from ~½ g Δt up
-    /// (below, its step-to-step noise releases the floor, which the
-    /// implicit pressure then solves as open); columns at rest stay held
-    /// down to 1e-6 m/s. It moves the thin sheet's and the liquid's
-    /// fronts: on the lab column, at 1e-7 m/s or less (where the floor's
-    /// noise releases it and the pore pressure under the front drops),
-    /// the 0.5 % front is 9 % and the liquid front 16 % shorter.
+    /// released for the step, right after the map, when its mixture is
+    /// carried off the wall within the step (its mapped momentum plus Δt
+    /// times the force it felt there in the last step) faster than this
+    /// per unit mass; the solve's own test (its end velocity off the wall)
+    /// asks no speed and releases it from the next step. Where liquid may
+    /// hold tension (`cavitation_threshold` > 0) only the solve's test
+    /// acts. Default: 0, no tolerance: the force keeps a layer resting on
+    /// a wall held against its step-to-step noise (docs/mpm.md, "What the
+    /// bar stood for, and the force that replaces it"; on the lab column
+    /// 0 and 2.1e-4 m/s give the same fronts to 0.1 %).
     #[serde(default)]
     pub wall_release_speed: Option<f64>,
     /// Where a frictional wall's Coulomb impulse μ Δt N acts: `wall_node`
