@@ -112,7 +112,7 @@ fn a_block_thrown_off_a_unilateral_wall_keeps_its_momentum() {
 fn a_mapped_velocity_off_the_wall_releases_it_above_the_release_speed() {
     // Thrown off the wall at 0.1 m/s: under a release speed of 0.05 m/s
     // the map's test lets it go in the first step (P_x stays M v0, as
-    // under the default g Δt ≈ 1e-4 m/s). Under 0.5 m/s the wall holds
+    // under the default, no tolerance). Under 0.5 m/s the wall holds
     // its tail through the first step, until the solve's own test (the
     // mixture's end velocity off the wall, no speed asked) releases it:
     // P_x dips (0.950 measured) but is not swung back as under the

@@ -341,7 +341,7 @@ fn a_sliding_saturated_layer_keeps_its_hydrostatic_pore_pressure() {
     // carries only half of that. Over the body (4 cm in from both ends,
     // clear of the slumping front and the tail), Σ V p / Σ V ρ_L g_n d with
     // d below the highest liquid point of each 2 mm of x plus h/6 (half
-    // the points' vertical spacing): measured 0.961–1.001 over 0.15 s
+    // the points' vertical spacing): measured 0.962–1.001 over 0.15 s
     // (session 44); bar 0.93–1.02 (the layer thins by 1 mm as its front
     // slumps, which the local top follows only per 2 mm). And it slides
     // at g sin 10° less the scenes' Cundall damping α = 0.02 (which takes
