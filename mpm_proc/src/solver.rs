@@ -311,8 +311,9 @@ pub struct MpmState {
     pub walls_released: Vec<bool>,
     /// Under unilateral walls, each of `Fixities::walls`' component of the
     /// last step's undamped force on the mixture there (both phases, the
-    /// implicit pore pressure's included), N/m, along the wall's inward
-    /// normal; 0 where the map did not touch it or it had no mass. What
+    /// implicit pore pressure's included), N/m, along `WallComponent::into`
+    /// (positive: pressing into the wall); 0 where the map did not touch it
+    /// or it had no mass. What
     /// `Mpm::release_walls_moved_off` expects the wall to push against in
     /// the step; empty otherwise.
     pub wall_push: Vec<f64>,
@@ -670,10 +671,12 @@ pub struct Mpm {
 pub struct WallReleaseStats {
     /// Wall components released right after the map, summed over the steps.
     pub released_at_map: u64,
-    /// The largest mapped speed off the wall, m/s, of a held component with
-    /// mass that the test kept held (at most `Params::wall_release_speed`;
-    /// 0 if none moved off): at a wall the material rests on, the mapped
-    /// velocity's round-off.
+    /// The largest speed off the wall, m/s, at which a held component with
+    /// mass that the test kept held was carried within the step ((mapped
+    /// momentum + Δt × `MpmState::wall_push`) off the wall over its mass;
+    /// at most `Params::wall_release_speed`), or 0 if none was carried off:
+    /// 0 where the material rests, pressed into its walls. Components
+    /// skipped (cavitation allowed, held by a gate) are not counted.
     pub largest_speed_kept: f64,
 }
 
@@ -1682,7 +1685,10 @@ impl Mpm {
     /// pressure's solve (a layer sliding on the floor kept 0.86 of its
     /// hydrostatic pore pressure with the velocity alone tested against
     /// g Δt/20, 0.96 with the force; session 44, docs/mpm.md "The release
-    /// speed"). Counts into `Mpm::wall_release_stats`.
+    /// speed"). With no tolerance, a component the force barely presses
+    /// (a side wall at a free surface, a sheet's tip) may flip on
+    /// round-off; the solve's test corrects it within the step. Counts
+    /// into `Mpm::wall_release_stats`.
     fn release_walls_moved_off(&mut self) {
         let tol = self.mass_tolerance;
         let (bar, dt) = (self.params.wall_release_speed.unwrap_or(0.0), self.params.dt);

@@ -171,6 +171,42 @@ fn columns_at_rest_stay_held_with_no_release_tolerance() {
 }
 
 #[test]
+fn the_last_steps_force_releases_or_holds_a_resting_block_at_the_map() {
+    // The block at rest against the back wall (20 steps after its set-up):
+    // its mapped momentum off the wall is 0, so the map's test reads the
+    // force of the last step alone (`MpmState::wall_push`). Set to pull
+    // the mixture off the wall (1e3 N/m, far above the block's weight,
+    // ~2.5 N/m) it releases the wall components with mass at the next
+    // map; set to press it into the wall it releases none.
+    let settled = || {
+        let mut mpm = block_at_the_back_wall("unilateral", 0.0);
+        for _ in 0..20 {
+            mpm.step();
+        }
+        mpm.take_wall_release_stats();
+        mpm
+    };
+    let x_wall = |mpm: &Mpm| mpm.fixities.walls.iter().map(|w| w.axis == 0).collect::<Vec<bool>>();
+    let mut released = [0u64; 2];
+    for (k, push) in [-1e3, 1e3].into_iter().enumerate() {
+        let mut mpm = settled();
+        let on_x = x_wall(&mpm);
+        for (p, &x) in mpm.state.wall_push.iter_mut().zip(&on_x) {
+            if x {
+                *p = push;
+            }
+        }
+        mpm.step();
+        released[k] = mpm.take_wall_release_stats().released_at_map;
+    }
+    eprintln!("released at the map: {} pulled off, {} pressed in", released[0], released[1]);
+    // The block's 8 mm of height on 2 mm elements: its points put mass on
+    // at least the four wall nodes beside it.
+    assert!(released[0] >= 4, "a force pulling off the wall released {} components", released[0]);
+    assert_eq!(released[1], 0, "a force pressing into the wall released {} components", released[1]);
+}
+
+#[test]
 fn a_unilateral_wall_stops_a_block_thrown_at_it_and_lets_it_rebound() {
     // Thrown at the back wall from 4 mm (two elements) at 0.1 m/s. The
     // grid meets the wall when the block's points come within h + l (the
