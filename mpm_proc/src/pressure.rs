@@ -531,15 +531,21 @@ impl PressureProblem {
         for (e, &p) in pressure.iter().enumerate() {
             // Most of the grid is empty or free (p = 0): adding their ±0
             // leaves every sum as it is, so they are skipped.
-            if p == 0.0 {
-                continue;
+            if p != 0.0 {
+                self.add_element_forces(e, p, force_s, force_l);
             }
-            let (nodes, d) = self.divergence_coefficients(e);
-            for c in 0..4 {
-                for k in 0..2 {
-                    force_s[nodes[c]][k] += d[c][0][k] * p;
-                    force_l[nodes[c]][k] += d[c][1][k] * p;
-                }
+        }
+    }
+
+    /// Adds element `e`'s pressure `p` (Pa) to its corners' forces (Dᵀ's
+    /// column of `e`).
+    #[inline]
+    fn add_element_forces(&self, e: usize, p: f64, force_s: &mut [[f64; 2]], force_l: &mut [[f64; 2]]) {
+        let (corners, d) = self.divergence_coefficients(e);
+        for c in 0..4 {
+            for k in 0..2 {
+                force_s[corners[c]][k] += d[c][0][k] * p;
+                force_l[corners[c]][k] += d[c][1][k] * p;
             }
         }
     }
@@ -564,16 +570,12 @@ impl PressureProblem {
         // Sorted by `index_elements`: the ascending order of `pressure_forces`.
         for &e in &self.touched_elements {
             let (e, p) = (e as usize, pressure[e as usize]);
-            if p == 0.0 {
-                continue;
-            }
-            let (corners, d) = self.divergence_coefficients(e);
-            debug_assert!(corners.iter().all(|c| nodes.contains(c)), "element {e}'s corners outside {nodes:?}");
-            for c in 0..4 {
-                for k in 0..2 {
-                    force_s[corners[c]][k] += d[c][0][k] * p;
-                    force_l[corners[c]][k] += d[c][1][k] * p;
-                }
+            if p != 0.0 {
+                debug_assert!(
+                    self.divergence_coefficients(e).0.iter().all(|c| nodes.contains(c)),
+                    "element {e}'s corners outside {nodes:?}"
+                );
+                self.add_element_forces(e, p, force_s, force_l);
             }
         }
     }

@@ -1364,10 +1364,10 @@ impl Mpm {
     /// Runs `f(node)` over the touched node range in parallel, writing `out[node]`.
     fn for_active_nodes<T: Send>(&self, out: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
         let row = self.grid.node_dims()[0];
-        let (r0, r1) = self.rows;
         let (c0, c1) = self.columns;
-        let first = r0 * row + c0;
-        out[first..=r1 * row + c1].par_chunks_mut(NODE_CHUNK).enumerate().for_each(|(k, chunk)| {
+        let range = self.active_node_range();
+        let first = range.start;
+        out[range].par_chunks_mut(NODE_CHUNK).enumerate().for_each(|(k, chunk)| {
             let start = first + k * NODE_CHUNK;
             for (node, slot) in (start..).zip(chunk) {
                 if (c0..=c1).contains(&(node % row)) {
