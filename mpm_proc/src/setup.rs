@@ -87,6 +87,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         wall_release_speed: spec.wall_release_speed,
         friction_reaches_next_node: spec.wall_friction_reach == schemas::scene::MpmWallFrictionReach::NextNode,
         wall_points_take_grid_tangent: spec.wall_tangent_update == schemas::scene::MpmWallTangentUpdate::Grid,
+        liquid_film_shear: spec.liquid_wall_shear == schemas::scene::MpmLiquidWallShear::LaminarFilm,
         free_surface_fill: spec.free_surface_fill,
         hydrostatic_surface: spec.surface_elements_in_effect() == schemas::scene::MpmSurfaceElements::Hydrostatic,
         pic_fraction: spec.pic_fraction,

@@ -85,6 +85,10 @@ pub struct Params {
     /// default): only along the components held; along the wall they
     /// update as elsewhere (docs/mpm.md, "A re-projection once a step").
     pub wall_points_take_grid_tangent: bool,
+    /// `mpm.liquid_wall_shear = "laminar_film"`: slip walls put a laminar
+    /// film's depth-averaged shear on the liquid along them
+    /// (`Mpm::apply_liquid_wall_shear`). false (`"none"`): free slip.
+    pub liquid_film_shear: bool,
     /// Filling ratio below which a liquid point is on the free surface: its
     /// own (interpolated from the nodes) or its element's
     /// (`ElementScratch::filling_ratio`).
@@ -734,6 +738,9 @@ pub struct WallForces {
     /// `Params::friction_reaches_next_node`, what the nodes next to the
     /// walls took included).
     pub friction: f64,
+    /// The laminar film shear the walls applied to the liquid, in
+    /// magnitude (`Params::liquid_film_shear`).
+    pub liquid_shear: f64,
 }
 
 impl std::fmt::Debug for Mpm {
@@ -1048,6 +1055,7 @@ impl Mpm {
             lap(&mut seconds.liquid_force);
         }
         self.apply_wall_friction();
+        self.apply_liquid_wall_shear();
         lap(&mut seconds.wall_friction);
         self.update_velocities();
         lap(&mut seconds.update_velocities);
@@ -1899,6 +1907,92 @@ impl Mpm {
             totals.friction += taken / dt;
         }
         self.wall_forces = totals;
+    }
+
+    /// The laminar film's wall shear on the liquid (`Params::liquid_film_shear`;
+    /// Nusselt's film, e.g. Bird, Stewart & Lightfoot, *Transport
+    /// Phenomena*, §2.2): a film of depth d flowing at the depth-averaged
+    /// velocity Ū over a no-slip wall has the parabolic profile and the
+    /// wall shear τ = 3 μ Ū / d, so dŪ/dt = −3 ν Ū / d² without other
+    /// forces. The grid resolves the liquid's viscous stress only across
+    /// elements, so a film thinner than one needs it as a wall law.
+    ///
+    /// Per wall component held along its normal whose tangent is free, the
+    /// line of nodes off the wall (the ghost nodes behind it, the wall
+    /// node, then inward until a node without liquid) carries the liquid
+    /// mass M = ρ_L d h per metre of width (the shape functions partition
+    /// unity across the line, so M is the mass the line's tributary width
+    /// h holds); every node on it has its tangential liquid velocity
+    /// scaled by 1 / (1 + Δt · 3 ν / d²), backward Euler, so no step
+    /// reverses it. Precondition: the accelerations are final but for the
+    /// walls' friction (after the pressure stage). Postcondition: a
+    /// uniform film's Ū decays as (1 + Δt · 3 ν / d²)^(−t/Δt) → e^(−3νt/d²).
+    /// Where the line crosses soil, d is the water's equivalent depth n D
+    /// and the drag exceeds this by orders of magnitude; where a deep flow
+    /// runs along a wall, 3 ν / d² is small.
+    fn apply_liquid_wall_shear(&mut self) {
+        self.wall_forces.liquid_shear = 0.0;
+        if !self.params.liquid_film_shear || self.state.liquid.set.is_empty() {
+            return;
+        }
+        let [row, rows] = self.grid.node_dims();
+        let elements = self.grid.elements;
+        let (dt, h, tol) = (self.params.dt, self.grid.h, self.mass_tolerance);
+        let nu = self.params.viscosity / self.params.liquid_density;
+        let rho_h = self.params.liquid_density * h;
+        let mut shear = 0.0;
+        for w in &self.fixities.walls {
+            let (column, line) = (w.node % row, w.node / row);
+            let in_box = |c: usize, n: usize| (crate::grid::GHOST..=crate::grid::GHOST + n).contains(&c);
+            if !in_box(column, elements[0]) || !in_box(line, elements[1]) {
+                continue;
+            }
+            let tangent = 1 - w.axis;
+            if self.mask[w.node][w.axis] != 0.0 || self.mask[w.node][tangent] == 0.0 {
+                continue;
+            }
+            // Along the normal, into the box: +1 / +row away from a min wall.
+            let (stride, count) = if w.axis == 0 { (1, row) } else { (row, rows) };
+            let position = if w.axis == 0 { column } else { line };
+            let inward = -w.into as isize;
+            let first = position as isize - inward * crate::grid::GHOST as isize;
+            // Nodes from the ghosts behind the wall inward, the wall node
+            // included, stopping at the first node past it with no liquid.
+            let line_nodes = (0..)
+                .map(move |k| first + inward * k)
+                .take_while(move |&q| (0..count as isize).contains(&q))
+                .map(move |q| (w.node as isize + (q - position as isize) * stride as isize) as usize);
+            let sums = &self.sums;
+            let past_wall = |k: usize| k > crate::grid::GHOST;
+            let mut mass = 0.0;
+            for (k, node) in line_nodes.clone().enumerate() {
+                if past_wall(k) && sums[node].mass_l <= tol {
+                    break;
+                }
+                mass += sums[node].mass_l;
+            }
+            if mass <= tol {
+                continue;
+            }
+            let depth = mass / rho_h;
+            let decay = 1.0 / (1.0 + dt * 3.0 * nu / (depth * depth));
+            for (k, node) in line_nodes.enumerate() {
+                let m = sums[node].mass_l;
+                if past_wall(k) && m <= tol {
+                    break;
+                }
+                if m <= tol || self.mask[node][tangent] == 0.0 {
+                    continue;
+                }
+                let v = self.velocity_l[node][tangent];
+                let a = &mut self.accel[node].a[1][tangent];
+                let trial = v + dt * *a;
+                let end = trial * decay;
+                *a = (end - v) / dt;
+                shear += m * (trial - end).abs() / dt;
+            }
+        }
+        self.wall_forces.liquid_shear = shear;
     }
 
     /// Applies a friction impulse (N s/m) against the solid's tangential

@@ -283,8 +283,9 @@ fn a_detached_sheet_of_water_falls_free_and_one_on_the_floor_keeps_its_layer_pre
     let h = 4e-3;
     let theta = 2.0 / 3.0;
     let on_floor = |lift: f64| {
-        // No local damping, which takes its share α of every out-of-balance force, gravity's too.
-        let mut mpm = common::free_water_column(0.04, theta * h, 1000.0, "damping = 0.0");
+        // No local damping, which takes its share α of every out-of-balance force, gravity's too;
+        // no wall shear, which the side walls would put on a sheet falling along them.
+        let mut mpm = common::free_water_column(0.04, theta * h, 1000.0, "damping = 0.0\nliquid_wall_shear = \"none\"");
         assert_eq!(mpm.grid.h, h);
         for x in &mut mpm.state.liquid.set.x {
             x[1] += lift;

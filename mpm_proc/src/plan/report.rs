@@ -5,8 +5,8 @@
 
 use schemas::plan::Plan;
 use schemas::scene::{
-    Face, InitialStress, MpmFloor, MpmPressureReconstruction, MpmPressureScheme, MpmSurfaceElements, MpmTransfer,
-    MpmWallContact, MpmWallFrictionReach, MpmWallTangentUpdate, PackingSpec, Scene,
+    Face, InitialStress, MpmFloor, MpmLiquidWallShear, MpmPressureReconstruction, MpmPressureScheme,
+    MpmSurfaceElements, MpmTransfer, MpmWallContact, MpmWallFrictionReach, MpmWallTangentUpdate, PackingSpec, Scene,
 };
 
 use super::{self as mpm, SceneMpm};
@@ -369,7 +369,14 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
         (false, _) => "no floor".to_string(),
         (true, MpmFloor::Rough) => "z_min rough (no slip, impermeable)".to_string(),
         (true, MpmFloor::Frictional) => {
-            format!("z_min Coulomb, soil friction {} (liquid slips; impermeable)", m.wall_friction)
+            format!(
+                "z_min Coulomb, soil friction {} ({}; impermeable)",
+                m.wall_friction,
+                match m.liquid_wall_shear {
+                    MpmLiquidWallShear::LaminarFilm => "liquid: a laminar film's wall shear 3 mu U / d",
+                    MpmLiquidWallShear::None => "liquid slips",
+                }
+            )
         }
     };
     let rollers: Vec<&str> =
