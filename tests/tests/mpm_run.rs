@@ -665,21 +665,28 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     // pair moved the pile edge 0.90 -> 1.20 L0 and the 0.5 % front
     // 1.69 -> 2.15 L0, the 75 % share 0.21 L0: an error that grows as the
     // step shrinks (docs/mpm.md, "A re-projection once a step"). Under
-    // "blend" they measure 0.72 -> 0.74 (pile edge), 1.09 -> 1.13 (0.5 %
+    // "blend" they measured 0.72 -> 0.74 (pile edge), 1.09 -> 1.13 (0.5 %
     // front), shares within 0.03 L0; the bars, 0.06 L0 on the pile edge
-    // and the shares and 0.09 L0 on the front (8 % of the pile edge and
-    // of the front), are about twice what is left (the AFLIP blend's
-    // per-step share) and below what the re-projection moved (pile edge
-    // 0.30, front 0.46, the 50 / 75 / 90 % shares 0.09, 0.21, 0.33).
+    // and the shares (8 % of the pile edge), are about twice what is left
+    // (the AFLIP blend's per-step share) and below what the re-projection
+    // moved (pile edge 0.30, front 0.46, the 50 / 75 / 90 % shares 0.09,
+    // 0.21, 0.33). With the liquid's wall shear (session 45) the water
+    // film no longer carries the thin sheet at the longer step: its 0.5 %
+    // front measures 1.043, 1.072, 1.132 at courant 0.5, 0.25, 0.125, a
+    // step effect of the sheet's own under free top elements; it is held
+    // to 0.15 L0 here, a third of the re-projection's, and the default
+    // pair below to 0.09.
     // The top elements of the thin sheet beyond the pile are held free
     // (`surface_elements = "free"`, as when these were measured) to keep
-    // the wall's update alone in view: under the default "hydrostatic"
-    // the sheet keeps its pore pressure, runs further and moves with the
-    // step (0.5 % front 1.56, 1.66, 1.73 L0 at courant 0.5, 0.25, 0.125;
-    // docs/RESULTS.md, session 40): under the default only the body's
-    // shares are held to the bar (measured within 0.04). The pile edge
-    // scatters by 0.11 L0 under either (0.72, 0.63, 0.74 under "free" at
-    // courant 0.5, 0.25, 0.125).
+    // the wall's update alone in view. Under the default "hydrostatic"
+    // the sheet keeps its pore pressure and, before the liquid's wall
+    // shear (`liquid_wall_shear = "none"`), rode a film of water that
+    // coasted on along the floor: 0.5 % front 1.626 -> 1.750, liquid
+    // front 3.04 -> 2.86 L0 (session 45). With the laminar film's shear
+    // (the default) they measure 1.250 -> 1.272 and 1.375 -> 1.406, held
+    // here to the same 0.09 L0 bar as the front, with the body's shares.
+    // The pile edge scatters by 0.11 L0 under either (0.72, 0.63, 0.74
+    // under "free" at courant 0.5, 0.25, 0.125).
     let l0 = 0.04;
     let run_under = |courant: &str, surface: &str| {
         coupler_run(
@@ -704,7 +711,7 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     eprintln!("pile edge {pile_a:.3} / {pile_b:.3}, 0.5 % front {:.3} / {:.3}", a.runout, b.runout);
     assert!((pile_a - pile_b).abs() < 0.06, "pile edge {pile_a:.3} L0 at courant 0.5, {pile_b:.3} at 0.125");
     assert!(
-        (a.runout - b.runout).abs() < 0.09,
+        (a.runout - b.runout).abs() < 0.15,
         "0.5 % front {:.3} L0 at courant 0.5, {:.3} at 0.125",
         a.runout,
         b.runout
@@ -715,6 +722,20 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
         assert!((xa - xb).abs() < 0.06, "{:.0} % share {xa:.3} L0 at courant 0.5, {xb:.3} at 0.125", share * 100.0);
     }
     let (long, short) = (run_under("0.5", "hydrostatic"), run_under("0.125", "hydrostatic"));
+    let (a, b) = (integration_tests::summary(&long), integration_tests::summary(&short));
+    let liquid = |s: &schemas::summary::RunSummary| s.liquid_front.last().expect("a liquid front").x_norm;
+    let (liquid_a, liquid_b) = (liquid(&a), liquid(&b));
+    eprintln!("hydrostatic: 0.5 % front {:.3} / {:.3}, liquid front {liquid_a:.3} / {liquid_b:.3}", a.runout, b.runout);
+    assert!(
+        (a.runout - b.runout).abs() < 0.09,
+        "hydrostatic: 0.5 % front {:.3} L0 at courant 0.5, {:.3} at 0.125",
+        a.runout,
+        b.runout
+    );
+    assert!(
+        (liquid_a - liquid_b).abs() < 0.09,
+        "hydrostatic: liquid front {liquid_a:.3} L0 at courant 0.5, {liquid_b:.3} at 0.125"
+    );
     for share in [0.5, 0.75, 0.9] {
         let (xa, xb) = (grain_share(&long, share, l0), grain_share(&short, share, l0));
         eprintln!("hydrostatic: {:.0} % share {xa:.3} / {xb:.3}", share * 100.0);
