@@ -473,6 +473,55 @@ struct ContactNode {
     support_ratio: f64,
 }
 
+/// The line of nodes along a wall's normal through one of its in-box
+/// nodes, by position q along that axis (stored column or row index).
+#[derive(Debug, Clone, Copy)]
+struct WallLine {
+    wall_node: usize,
+    /// The wall node's position, the first ghost's behind it, the
+    /// opposite wall's; `inward` is +1 from a min wall, −1 from a max one.
+    position: isize,
+    first: isize,
+    opposite: isize,
+    inward: isize,
+    /// Index step between positions, and the positions stored.
+    stride: isize,
+    count: isize,
+}
+
+impl WallLine {
+    fn node_at(&self, q: isize) -> usize {
+        (self.wall_node as isize + (q - self.position) * self.stride) as usize
+    }
+
+    /// (position, node) of the line's nodes that carry liquid in this step:
+    /// the ghosts behind the wall (which may hold none), then from the
+    /// wall node inward to the first without (outside the touched range
+    /// a node's sums are stale and count as none).
+    fn nodes<'a>(
+        &self,
+        sums: &'a [NodeSums],
+        touched: impl Fn(usize) -> bool + 'a,
+        tol: f64,
+    ) -> impl Iterator<Item = (isize, usize)> + 'a {
+        let line = *self;
+        (0..)
+            .map(move |k| (k, line.first + line.inward * k as isize))
+            .take_while(move |&(_, q)| (0..line.count).contains(&q))
+            .map_while(move |(k, q)| {
+                let node = line.node_at(q);
+                if touched(node) && sums[node].mass_l > tol {
+                    Some(Some((q, node)))
+                } else if k < crate::grid::GHOST {
+                    Some(None)
+                } else {
+                    None
+                }
+            })
+            .flatten()
+    }
+}
+
 /// Per-element fields.
 #[derive(Debug, Default)]
 struct ElementScratch {
@@ -738,9 +787,6 @@ pub struct WallForces {
     /// `Params::friction_reaches_next_node`, what the nodes next to the
     /// walls took included).
     pub friction: f64,
-    /// The laminar film shear the walls applied to the liquid, in
-    /// magnitude (`Params::liquid_film_shear`).
-    pub liquid_shear: f64,
 }
 
 impl std::fmt::Debug for Mpm {
@@ -1028,6 +1074,8 @@ impl Mpm {
         lap(&mut seconds.prepare_forces);
         self.solve_nodes();
         lap(&mut seconds.solve_nodes);
+        self.apply_liquid_wall_shear();
+        lap(&mut seconds.wall_friction);
         if implicit {
             let started = std::time::Instant::now();
             self.pressure_reference();
@@ -1055,7 +1103,6 @@ impl Mpm {
             lap(&mut seconds.liquid_force);
         }
         self.apply_wall_friction();
-        self.apply_liquid_wall_shear();
         lap(&mut seconds.wall_friction);
         self.update_velocities();
         lap(&mut seconds.update_velocities);
@@ -1919,80 +1966,95 @@ impl Mpm {
     ///
     /// Per wall component held along its normal whose tangent is free, the
     /// line of nodes off the wall (the ghost nodes behind it, the wall
-    /// node, then inward until a node without liquid) carries the liquid
-    /// mass M = ρ_L d h per metre of width (the shape functions partition
-    /// unity across the line, so M is the mass the line's tributary width
-    /// h holds); every node on it has its tangential liquid velocity
-    /// scaled by 1 / (1 + Δt · 3 ν / d²), backward Euler, so no step
-    /// reverses it. Precondition: the accelerations are final but for the
-    /// walls' friction (after the pressure stage). Postcondition: a
-    /// uniform film's Ū decays as (1 + Δt · 3 ν / d²)^(−t/Δt) → e^(−3νt/d²).
-    /// Where the line crosses soil, d is the water's equivalent depth n D
-    /// and the drag exceeds this by orders of magnitude; where a deep flow
-    /// runs along a wall, 3 ν / d² is small.
+    /// node, then inward while the nodes carry liquid; a wall node without
+    /// liquid has no film on it) carries the liquid mass M = ρ_L d h per
+    /// metre of width (the shape functions partition unity across the
+    /// line, so M is the mass the line's tributary width h holds). Every
+    /// node on it has its tangential liquid velocity scaled by
+    /// 1 / (1 + Δt · 3 ν / d²), backward Euler, so no step reverses it.
+    /// Where the liquid fills the line up to a held wall opposite, a gap
+    /// W away, both walls' lines cover it: each applies half of a
+    /// channel's rate 12 ν / W² (plane Poiseuille flow, a film of depth
+    /// W/2 on each wall), d = W the gap itself.
+    ///
+    /// Limit: a line the liquid covers only in part along the wall (a
+    /// film's tip, the end of a column of water) reads as a thinner film
+    /// and is slowed more (by 1/c² at a share c covered), unless it
+    /// reaches a wall opposite; docs/mpm.md, "The liquid's wall shear".
+    ///
+    /// Precondition: the nodes' accelerations from `solve_nodes`, before
+    /// the implicit pore pressure's projection (which then sees the wall's
+    /// shear as it sees the other forces) and the walls' friction on the
+    /// solid. Postcondition: a uniform film's Ū decays as
+    /// (1 + Δt · 3 ν / d²)^(−t/Δt) → e^(−3νt/d²). Where the line crosses
+    /// soil, d is the water's equivalent depth n D and the drag exceeds
+    /// this by orders of magnitude; where a deep flow runs along a wall,
+    /// 3 ν / d² is small.
     fn apply_liquid_wall_shear(&mut self) {
-        self.wall_forces.liquid_shear = 0.0;
         if !self.params.liquid_film_shear || self.state.liquid.set.is_empty() {
             return;
         }
-        let [row, rows] = self.grid.node_dims();
-        let elements = self.grid.elements;
         let (dt, h, tol) = (self.params.dt, self.grid.h, self.mass_tolerance);
         let nu = self.params.viscosity / self.params.liquid_density;
         let rho_h = self.params.liquid_density * h;
-        let mut shear = 0.0;
         for w in &self.fixities.walls {
-            let (column, line) = (w.node % row, w.node / row);
-            let in_box = |c: usize, n: usize| (crate::grid::GHOST..=crate::grid::GHOST + n).contains(&c);
-            if !in_box(column, elements[0]) || !in_box(line, elements[1]) {
-                continue;
-            }
+            let Some(line) = self.wall_line(w) else { continue };
             let tangent = 1 - w.axis;
             if self.mask[w.node][w.axis] != 0.0 || self.mask[w.node][tangent] == 0.0 {
                 continue;
             }
-            // Along the normal, into the box: +1 / +row away from a min wall.
-            let (stride, count) = if w.axis == 0 { (1, row) } else { (row, rows) };
-            let position = if w.axis == 0 { column } else { line };
-            let inward = -w.into as isize;
-            let first = position as isize - inward * crate::grid::GHOST as isize;
-            // Nodes from the ghosts behind the wall inward, the wall node
-            // included, stopping at the first node past it with no liquid.
-            let line_nodes = (0..)
-                .map(move |k| first + inward * k)
-                .take_while(move |&q| (0..count as isize).contains(&q))
-                .map(move |q| (w.node as isize + (q - position as isize) * stride as isize) as usize);
-            let sums = &self.sums;
-            let past_wall = |k: usize| k > crate::grid::GHOST;
-            let mut mass = 0.0;
-            for (k, node) in line_nodes.clone().enumerate() {
-                if past_wall(k) && sums[node].mass_l <= tol {
-                    break;
-                }
-                mass += sums[node].mass_l;
+            let (mut mass, mut last) = (0.0, line.first);
+            for (q, node) in line.nodes(&self.sums, self.touched_range(), tol) {
+                mass += self.sums[node].mass_l;
+                last = q;
             }
             if mass <= tol {
                 continue;
             }
-            let depth = mass / rho_h;
-            let decay = 1.0 / (1.0 + dt * 3.0 * nu / (depth * depth));
-            for (k, node) in line_nodes.enumerate() {
-                let m = sums[node].mass_l;
-                if past_wall(k) && m <= tol {
-                    break;
-                }
-                if m <= tol || self.mask[node][tangent] == 0.0 {
+            let reaches_a_wall =
+                (last - line.opposite) * line.inward >= 0 && self.mask[line.node_at(line.opposite)][w.axis] == 0.0;
+            let rate = if reaches_a_wall {
+                let gap = (line.opposite - line.position).abs() as f64 * h;
+                6.0 * nu / (gap * gap)
+            } else {
+                let depth = mass / rho_h;
+                3.0 * nu / (depth * depth)
+            };
+            let decay = 1.0 / (1.0 + dt * rate);
+            for (_, node) in line.nodes(&self.sums, self.touched_range(), tol) {
+                if self.mask[node][tangent] == 0.0 {
                     continue;
                 }
                 let v = self.velocity_l[node][tangent];
                 let a = &mut self.accel[node].a[1][tangent];
-                let trial = v + dt * *a;
-                let end = trial * decay;
-                *a = (end - v) / dt;
-                shear += m * (trial - end).abs() / dt;
+                *a = ((v + dt * *a) * decay - v) / dt;
             }
         }
-        self.wall_forces.liquid_shear = shear;
+    }
+
+    /// The line of nodes along the normal of the in-box wall component
+    /// `w` (None for a ghost node's component).
+    fn wall_line(&self, w: &WallComponent) -> Option<WallLine> {
+        const GHOST: usize = crate::grid::GHOST;
+        let [row, rows] = self.grid.node_dims();
+        let elements = self.grid.elements;
+        let (column, line) = (w.node % row, w.node / row);
+        let in_box = |c: usize, n: usize| (GHOST..=GHOST + n).contains(&c);
+        if !in_box(column, elements[0]) || !in_box(line, elements[1]) {
+            return None;
+        }
+        let (stride, count) = if w.axis == 0 { (1, row) } else { (row, rows) };
+        let position = if w.axis == 0 { column } else { line } as isize;
+        let inward = -w.into as isize;
+        Some(WallLine {
+            wall_node: w.node,
+            position,
+            stride: stride as isize,
+            count: count as isize,
+            inward,
+            first: position - inward * GHOST as isize,
+            opposite: if inward > 0 { (GHOST + elements[w.axis]) as isize } else { GHOST as isize },
+        })
     }
 
     /// Applies a friction impulse (N s/m) against the solid's tangential

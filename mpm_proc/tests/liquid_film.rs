@@ -5,7 +5,9 @@
 //! shear τ = 3 μ Ū / d, so its depth-averaged velocity Ū obeys
 //! dŪ/dt = g sin θ − Ū / T with T = d² / (3 ν). Released at U0 on a level
 //! floor it decays as U0 e^(−t/T); on a slope it reaches Nusselt's
-//! U_N = g sin θ d² / (3 ν).
+//! U_N = g sin θ d² / (3 ν). Between two walls a gap W apart the flow
+//! is plane Poiseuille's, with each wall's shear 6 μ Ū / W:
+//! dŪ/dt = −12 ν Ū / W².
 
 mod common;
 
@@ -86,6 +88,77 @@ fn a_film_released_on_a_level_floor_slows_as_nusselts_wall_shear_says() {
     run_to(&mut slip, t);
     let free = middle_velocity(&slip) / u0;
     assert!((free - 1.0).abs() < 0.01, "U/U0 = {free} at T under free slip, 1 expected");
+}
+
+/// A film a third of an element deep (one row of points on 4 mm
+/// elements, d = 1.33 mm), the films the wall law is for, released at U0:
+/// T = d²/(3ν) = 5.9 ms.
+#[test]
+fn a_film_thinner_than_an_element_slows_as_nusselts_wall_shear_says() {
+    let (h, u0) = (0.004, 0.05);
+    let depth = h / 3.0;
+    let t = depth * depth / (3.0 * MU / RHO);
+    let mut m = common::free_water_column(
+        LENGTH,
+        depth,
+        RHO,
+        &format!("element_size = {h}\nliquid_bulk_modulus = 2.0e6\ndamping = 0.0"),
+    );
+    m.params.viscosity = MU;
+    m.params.drag.viscosity = MU;
+    m.state.liquid.set.set_velocity([u0, 0.0]);
+    run_to(&mut m, t);
+    let at_t = middle_velocity(&m) / u0;
+    run_to(&mut m, 2.0 * t);
+    let at_2t = middle_velocity(&m) / u0;
+    eprintln!("sub-element film: U/U0 {at_t:.4} at T, {at_2t:.4} at 2T");
+    assert!((at_t / (-1.0f64).exp() - 1.0).abs() < 0.01, "U/U0 = {at_t} at T, e^-1 expected");
+    assert!((at_2t / (-2.0f64).exp() - 1.0).abs() < 0.01, "U/U0 = {at_2t} at 2T, e^-2 expected");
+}
+
+/// Water filling a vertical channel W = 8 mm wide between the side walls
+/// (x_min and x_max, four 2 mm elements), 0.1 m tall and lifted 5 mm
+/// off the floor, gravity off, released upward at U0: both walls' lines
+/// reach the opposite wall, and together they give Poiseuille's
+/// 12 ν / W², T = W²/(12ν) = 53 ms. With each wall's film law over the
+/// whole gap (3 ν / W² each) T would be twice that. The column's end
+/// rows are only partly covered; a line that reaches the opposite wall
+/// takes the gap for its depth (taking its nodal mass's depth, a fraction
+/// of W there, the column was at 0.3514 U0 at T; 0.3588 standing on the
+/// floor, with one free end).
+#[test]
+fn water_between_two_walls_slows_as_plane_poiseuille_flow() {
+    let (width, height, u0) = (0.008, 0.1, 0.05);
+    let t = width * width / (12.0 * MU / RHO);
+    let mut m = common::free_water_column(
+        width,
+        height,
+        RHO,
+        "element_size = 0.002\nliquid_bulk_modulus = 2.0e6\ndamping = 0.0",
+    );
+    m.params.viscosity = MU;
+    m.params.drag.viscosity = MU;
+    m.params.gravity = [0.0, 0.0];
+    let lift = 0.005;
+    for x in &mut m.state.liquid.set.x {
+        x[1] += lift;
+    }
+    m.state.liquid.set.set_velocity([0.0, u0]);
+    let middle = |m: &Mpm| {
+        let l = &m.state.liquid.set;
+        let (mut momentum, mut mass) = (0.0, 0.0);
+        for p in 0..l.len() {
+            if (lift + height / 3.0..lift + 2.0 * height / 3.0).contains(&l.x[p][1]) {
+                momentum += l.mass[p] * l.v[p][1];
+                mass += l.mass[p];
+            }
+        }
+        momentum / mass
+    };
+    run_to(&mut m, t);
+    let at_t = middle(&m) / u0;
+    eprintln!("channel: U/U0 {at_t:.4} at T (e^-1 = {:.4})", (-1.0f64).exp());
+    assert!((at_t / (-1.0f64).exp() - 1.0).abs() < 0.01, "U/U0 = {at_t} at T, e^-1 expected");
 }
 
 #[test]

@@ -672,7 +672,7 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     // moved (pile edge 0.30, front 0.46, the 50 / 75 / 90 % shares 0.09,
     // 0.21, 0.33). With the liquid's wall shear (session 45) the water
     // film no longer carries the thin sheet at the longer step: its 0.5 %
-    // front measures 1.043, 1.072, 1.132 at courant 0.5, 0.25, 0.125, a
+    // front measures 1.042, 1.072, 1.132 at courant 0.5, 0.25, 0.125, a
     // step effect of the sheet's own under free top elements; it is held
     // to 0.15 L0 here, a third of the re-projection's, and the default
     // pair below to 0.09.
@@ -683,7 +683,7 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     // shear (`liquid_wall_shear = "none"`), rode a film of water that
     // coasted on along the floor: 0.5 % front 1.626 -> 1.750, liquid
     // front 3.04 -> 2.86 L0 (session 45). With the laminar film's shear
-    // (the default) they measure 1.250 -> 1.272 and 1.375 -> 1.406, held
+    // (the default) they measure 1.249 -> 1.272 and 1.375 -> 1.406, held
     // here to the same 0.09 L0 bar as the front, with the body's shares.
     // The pile edge scatters by 0.11 L0 under either (0.72, 0.63, 0.74
     // under "free" at courant 0.5, 0.25, 0.125).

@@ -369,14 +369,7 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
         (false, _) => "no floor".to_string(),
         (true, MpmFloor::Rough) => "z_min rough (no slip, impermeable)".to_string(),
         (true, MpmFloor::Frictional) => {
-            format!(
-                "z_min Coulomb, soil friction {} ({}; impermeable)",
-                m.wall_friction,
-                match m.liquid_wall_shear {
-                    MpmLiquidWallShear::LaminarFilm => "liquid: a laminar film's wall shear 3 mu U / d",
-                    MpmLiquidWallShear::None => "liquid slips",
-                }
-            )
+            format!("z_min Coulomb, soil friction {} (liquid slips; impermeable)", m.wall_friction)
         }
     };
     let rollers: Vec<&str> =
@@ -385,7 +378,7 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
     p.line(
         "boundaries",
         format!(
-            "{fixed}; {side} on {}; {}; {}; {}; y faces unused; local damping {}; top load {} Pa",
+            "{fixed}; {side} on {}; {}; {}; {}; {}; y faces unused; local damping {}; top load {} Pa",
             if rollers.is_empty() { "none".to_string() } else { rollers.join(" ") },
             match (m.wall_contact, m.wall_release_speed) {
                 (MpmWallContact::Bilateral, _) => "walls hold the normal velocity both ways".to_string(),
@@ -404,6 +397,11 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
             match m.wall_tangent_update {
                 MpmWallTangentUpdate::Grid => "points on a frictional wall take the grid's velocity along it",
                 MpmWallTangentUpdate::Blend => "points on a frictional wall update along it as elsewhere",
+            },
+            match m.liquid_wall_shear {
+                MpmLiquidWallShear::LaminarFilm =>
+                    "the liquid slipping along a wall feels a laminar film's shear 3 mu U / d (Nusselt)",
+                MpmLiquidWallShear::None => "the liquid slips freely along the walls",
             },
             m.damping,
             m.top_load
