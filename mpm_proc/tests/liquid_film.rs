@@ -26,19 +26,26 @@ fn film_time() -> f64 {
     DEPTH * DEPTH / (3.0 * MU / RHO)
 }
 
-/// A film LENGTH × DEPTH on the floor of a box as long, under gravity
-/// tilted by `slope` (sin θ), with the given `[mpm]` lines. The bulk
-/// modulus is a tenth of the lab's: the film stays within 1e-5 of its
-/// volume and the step is three times longer.
-fn film(slope: f64, mpm: &str) -> Mpm {
+/// A block of the syrup `width` × `height` m standing on the floor of a
+/// box as wide, on elements of `element` m, with the given `[mpm]` lines.
+/// The bulk modulus is a tenth of the lab's: the block stays within 1e-5
+/// of its volume and the step is three times longer.
+fn syrup(width: f64, height: f64, element: f64, mpm: &str) -> Mpm {
     let mut m = common::free_water_column(
-        LENGTH,
-        DEPTH,
+        width,
+        height,
         RHO,
-        &format!("element_size = 0.002\nliquid_bulk_modulus = 2.0e6\ndamping = 0.0\n{mpm}"),
+        &format!("element_size = {element}\nliquid_bulk_modulus = 2.0e6\ndamping = 0.0\n{mpm}"),
     );
     m.params.viscosity = MU;
     m.params.drag.viscosity = MU;
+    m
+}
+
+/// A film LENGTH × DEPTH on 2 mm elements under gravity tilted by
+/// `slope` (sin θ), with the given `[mpm]` lines.
+fn film(slope: f64, mpm: &str) -> Mpm {
+    let mut m = syrup(LENGTH, DEPTH, 0.002, mpm);
     m.params.gravity = [G * slope, -G * (1.0 - slope * slope).sqrt()];
     m
 }
@@ -98,14 +105,7 @@ fn a_film_thinner_than_an_element_slows_as_nusselts_wall_shear_says() {
     let (h, u0) = (0.004, 0.05);
     let depth = h / 3.0;
     let t = depth * depth / (3.0 * MU / RHO);
-    let mut m = common::free_water_column(
-        LENGTH,
-        depth,
-        RHO,
-        &format!("element_size = {h}\nliquid_bulk_modulus = 2.0e6\ndamping = 0.0"),
-    );
-    m.params.viscosity = MU;
-    m.params.drag.viscosity = MU;
+    let mut m = syrup(LENGTH, depth, h, "");
     m.state.liquid.set.set_velocity([u0, 0.0]);
     run_to(&mut m, t);
     let at_t = middle_velocity(&m) / u0;
@@ -130,14 +130,7 @@ fn a_film_thinner_than_an_element_slows_as_nusselts_wall_shear_says() {
 fn water_between_two_walls_slows_as_plane_poiseuille_flow() {
     let (width, height, u0) = (0.008, 0.1, 0.05);
     let t = width * width / (12.0 * MU / RHO);
-    let mut m = common::free_water_column(
-        width,
-        height,
-        RHO,
-        "element_size = 0.002\nliquid_bulk_modulus = 2.0e6\ndamping = 0.0",
-    );
-    m.params.viscosity = MU;
-    m.params.drag.viscosity = MU;
+    let mut m = syrup(width, height, 0.002, "");
     m.params.gravity = [0.0, 0.0];
     let lift = 0.005;
     for x in &mut m.state.liquid.set.x {
