@@ -685,8 +685,9 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     // front 3.04 -> 2.86 L0 (session 45). With the laminar film's shear
     // (the default) they measure 1.249 -> 1.272 and 1.375 -> 1.406, held
     // here to the same 0.09 L0 bar as the front, with the body's shares.
-    // The pile edge scatters by 0.11 L0 under either (0.72, 0.63, 0.74
-    // under "free" at courant 0.5, 0.25, 0.125).
+    // The pile edge under "free" measures 0.723, 0.738, 0.688 at courant
+    // 0.5, 0.25, 0.125 (before session 45 it scattered by 0.11: 0.72, 0.63,
+    // 0.74).
     let l0 = 0.04;
     let run_under = |courant: &str, surface: &str| {
         coupler_run(
