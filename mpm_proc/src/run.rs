@@ -220,11 +220,21 @@ pub fn run(
     rayon::scope(|_| run_on_pool(scene, opts, stop, progress))
 }
 
+/// The layout version of an MPM checkpoint ([`MpmCheckpoint`]), written as
+/// its first field. bincode stores no field names, so a checkpoint of
+/// another layout could decode into wrong numbers rather than fail: bump
+/// this whenever `MpmCheckpoint` or anything it holds (`MpmState`, its
+/// point sets, `Gathered`, `GravityPhase`, `LiquidImpulse`) changes its
+/// fields. Version 1 is the first stored (session 46).
+pub const CHECKPOINT_VERSION: u32 = 1;
+
 /// An MPM run's checkpoint ([`Solver::checkpoint`]): the state, what the
 /// frames gathered and what the set-up measured. Written borrowing the
 /// run's parts (no copy of the point arrays), read owning them.
 #[derive(Serialize, Deserialize)]
 struct MpmCheckpoint<S = MpmState, G = Gathered, P = GravityPhase> {
+    /// [`CHECKPOINT_VERSION`] when written.
+    version: u32,
     state: S,
     gathered: G,
     gravity: P,
@@ -236,6 +246,35 @@ struct MpmCheckpoint<S = MpmState, G = Gathered, P = GravityPhase> {
     pore_pressure_peak: f64,
     /// The liquid's impulse on the solid since the last frame.
     liquid_impulse: LiquidImpulse,
+}
+
+/// Reads an MPM checkpoint, refusing one of another layout by its version.
+fn read_checkpoint(path: &Path, scene: &Scene) -> Result<(checkpoint::CheckpointFile, MpmCheckpoint), RecordError> {
+    let file = checkpoint::read(path, "mpm_proc", scene)?;
+    Ok(decode_checkpoint(file, path)?)
+}
+
+/// The solver part of a checkpoint read from `path`: its layout version
+/// first, so that another layout is named as such instead of decoding into
+/// wrong numbers (or failing on a field deep inside).
+fn decode_checkpoint(
+    file: checkpoint::CheckpointFile,
+    path: &Path,
+) -> Result<(checkpoint::CheckpointFile, MpmCheckpoint), checkpoint::CheckpointError> {
+    let version =
+        bincode::serde::decode_from_slice::<u32, _>(&file.solver, bincode::config::standard()).map(|(v, _)| v);
+    if version.as_ref().ok() != Some(&CHECKPOINT_VERSION) {
+        let found = version.map_or("no readable version".to_string(), |v| format!("layout version {v}"));
+        return Err(checkpoint::CheckpointError::Damaged {
+            path: path.to_path_buf(),
+            why: format!(
+                "its MPM state has {found} (one written before the version was stored has none: its first \
+                 bytes read as any number), this mpm_proc resumes version {CHECKPOINT_VERSION}: resume with the mpm_proc that \
+                 wrote it, or start the run again without --resume"
+            ),
+        });
+    }
+    checkpoint::decode_solver(file, path, "its MPM state")
 }
 
 /// The MPM as the run driver steps it, with what its frames and summary need.
@@ -298,8 +337,7 @@ fn run_on_pool(
     }
     let mut solver = match &opts.resume {
         Some(path) => {
-            let (file, c): (_, MpmCheckpoint) =
-                checkpoint::read_solver(path, "mpm_proc", scene, "its MPM state").map_err(RecordError::from)?;
+            let (file, c) = read_checkpoint(path, scene)?;
             for set in [&c.state.solid.set, &c.state.liquid.set] {
                 set.check_ids().map_err(|why| {
                     RecordError::from(checkpoint::CheckpointError::Damaged { path: path.to_path_buf(), why })
@@ -445,6 +483,7 @@ impl Solver for MpmRun<'_> {
 
     fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
         let c: MpmCheckpoint<&MpmState, &Gathered, &GravityPhase> = MpmCheckpoint {
+            version: CHECKPOINT_VERSION,
             state: &self.mpm.state,
             gathered: &self.gathered,
             gravity: &self.gravity,
@@ -765,5 +804,50 @@ mod pile_tests {
         let held: Vec<(f64, f64)> = spread(0.0, 0.5e-3, 1.0, 0.0, 2.5e-3).collect();
         assert_eq!(held.len(), 1);
         assert!((held[0].0 - 0.5e-3).abs() < 1e-15 && (held[0].1 - 1.0).abs() < 1e-12, "{held:?}");
+    }
+}
+
+#[cfg(test)]
+mod checkpoint_tests {
+    use super::{decode_checkpoint, CHECKPOINT_VERSION};
+    use runtime::checkpoint::{CheckpointFile, DriverState};
+    use std::path::Path;
+
+    fn file(solver: Vec<u8>) -> CheckpointFile {
+        let driver = DriverState {
+            steps: 10,
+            time: 0.01,
+            last_recorded: 0,
+            last_state: None,
+            frames_at_rest: 0,
+            has_moved: false,
+        };
+        CheckpointFile { process: "mpm_proc".into(), scene_hash: 1, driver, exchange: None, solver }
+    }
+
+    fn refusal(solver: Vec<u8>) -> String {
+        match decode_checkpoint(file(solver), Path::new("c.ckpt")) {
+            Ok(_) => panic!("a checkpoint of another layout must be refused"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn a_checkpoint_of_another_layout_is_refused_by_its_version() {
+        let encode = |v: u32| bincode::serde::encode_to_vec(v, bincode::config::standard()).expect("encodes");
+        // Another version, whatever follows it: named, with the way out.
+        let mut older = encode(CHECKPOINT_VERSION - 1);
+        older.extend_from_slice(&[0u8; 64]);
+        let why = refusal(older);
+        assert!(why.contains(&format!("layout version {}", CHECKPOINT_VERSION - 1)), "{why}");
+        assert!(why.contains(&format!("resumes version {CHECKPOINT_VERSION}")), "{why}");
+        assert!(why.contains("without --resume"), "{why}");
+        // Not even a version's bytes.
+        assert!(refusal(Vec::new()).contains("no readable version"));
+        // This version with a state cut short: the decoder's own refusal.
+        let mut cut = encode(CHECKPOINT_VERSION);
+        cut.extend_from_slice(&[1, 2, 3]);
+        let why = refusal(cut);
+        assert!(why.contains("does not decode"), "{why}");
     }
 }
