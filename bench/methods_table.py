@@ -3,9 +3,10 @@
 DEM-LBM"): for each Table 1 case, the MPM's runout by the 0.5 % mass front
 and by the pile edge (`runout_pile`, the DEM's rule; for summaries
 before session 32 the first deposit column lower than one grain), the liquid front at t/t_ref = 2 and at
-the end (the MPM's runs end when the grains rest, 3.6-4.3 t_ref, the
-DEM-LBM's at 8 t_ref, and the water goes on draining after the grains
-stop), and the mass front at t/t_ref = 1, 2, 4, against the DEM(-LBM)'s
+the end, with the t/t_ref the MPM's run ended at (the DEM-LBM's end at
+8.5 t_ref; since session 46 the Table 1 campaign runs the saturated MPM
+columns to 8.5 t_ref too, before it they stopped when the grains rested,
+3.6-4.3 t_ref, while the water drains on), and the mass front at t/t_ref = 1, 2, 4, against the DEM(-LBM)'s
 from its runs (mean over the seeds found). Marks '*' where the pile
 edges differ by more than 20 %.
 
