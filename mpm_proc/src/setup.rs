@@ -4,12 +4,12 @@
 //! initial stresses").
 
 use crate::plan::SceneMpm;
-use schemas::scene::{Face, InitialStress, MpmFloor, MpmSpec, PackingSpec, Scene};
+use schemas::scene::{Face, InitialStress, MpmFloor, MpmLiquidWallShear, MpmSpec, PackingSpec, Scene};
 
 use crate::drag::DragLaw;
 use crate::grid::{Grid, GHOST};
 use crate::mohr_coulomb::{InertialFriction, MohrCoulomb};
-use crate::solver::{Fixities, LiquidPoints, Mpm, MpmState, Params, PointSet, SolidPoints, WallComponent};
+use crate::solver::{FilmDepth, Fixities, LiquidPoints, Mpm, MpmState, Params, PointSet, SolidPoints, WallComponent};
 
 #[derive(Debug, thiserror::Error)]
 pub enum SetupError {
@@ -87,7 +87,11 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         wall_release_speed: spec.wall_release_speed,
         friction_reaches_next_node: spec.wall_friction_reach == schemas::scene::MpmWallFrictionReach::NextNode,
         wall_points_take_grid_tangent: spec.wall_tangent_update == schemas::scene::MpmWallTangentUpdate::Grid,
-        liquid_film_shear: spec.liquid_wall_shear == schemas::scene::MpmLiquidWallShear::LaminarFilm,
+        liquid_film_shear: match spec.liquid_wall_shear {
+            MpmLiquidWallShear::LaminarFilm => Some(FilmDepth::Covered),
+            MpmLiquidWallShear::LaminarFilmLineMass => Some(FilmDepth::LineMass),
+            MpmLiquidWallShear::None => None,
+        },
         free_surface_fill: spec.free_surface_fill,
         hydrostatic_surface: spec.surface_elements_in_effect() == schemas::scene::MpmSurfaceElements::Hydrostatic,
         pic_fraction: spec.pic_fraction,

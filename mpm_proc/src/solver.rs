@@ -85,10 +85,11 @@ pub struct Params {
     /// default): only along the components held; along the wall they
     /// update as elsewhere (docs/mpm.md, "A re-projection once a step").
     pub wall_points_take_grid_tangent: bool,
-    /// `mpm.liquid_wall_shear = "laminar_film"`: slip walls put a laminar
-    /// film's depth-averaged shear on the liquid along them
-    /// (`Mpm::apply_liquid_wall_shear`). false (`"none"`): free slip.
-    pub liquid_film_shear: bool,
+    /// `mpm.liquid_wall_shear`: whether slip walls put a laminar film's
+    /// depth-averaged shear on the liquid along them
+    /// (`Mpm::apply_liquid_wall_shear`; None: free slip), and how a line
+    /// of nodes reads the film's depth.
+    pub liquid_film_shear: Option<FilmDepth>,
     /// Filling ratio below which a liquid point is on the free surface: its
     /// own (interpolated from the nodes) or its element's
     /// (`ElementScratch::filling_ratio`).
@@ -522,6 +523,43 @@ impl WallLine {
     }
 }
 
+/// How the liquid's wall shear reads a film's depth at a line of nodes
+/// off a wall (`Params::liquid_film_shear`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FilmDepth {
+    /// The line's liquid mass over the part of its strip the liquid
+    /// points cover (`"laminar_film"`).
+    Covered,
+    /// The line's liquid mass over its whole strip
+    /// (`"laminar_film_line_mass"`, session 45).
+    LineMass,
+}
+
+/// A slip wall's line of nodes carrying liquid in this step, for the
+/// liquid's wall shear (`Mpm::apply_liquid_wall_shear`).
+#[derive(Debug, Clone, Copy)]
+struct FilmLine {
+    line: WallLine,
+    /// The wall component's axis (its normal).
+    axis: usize,
+    /// The liquid mass on the line's nodes, kg/m.
+    mass: f64,
+    /// Position of the last node inward that carries liquid.
+    last: isize,
+    /// Along the wall, the lowest and highest reach (centre ∓ half-width)
+    /// of the liquid points whose domains overlap this line's strip, m:
+    /// the part of the strip they cover (empty: lowest > highest).
+    covered: [f64; 2],
+    /// The liquid mass of the lines beside it that no point's domain
+    /// reaches (what this line's film maps past its end), its share, kg/m.
+    beyond: f64,
+    /// The film's depth the line's shear uses, m.
+    depth: f64,
+    /// The next line of the same wall side and tangent position
+    /// (`u32::MAX`: none): a held gate and the box's wall can share one.
+    next: u32,
+}
+
 /// Per-element fields.
 #[derive(Debug, Default)]
 struct ElementScratch {
@@ -716,6 +754,11 @@ pub struct Mpm {
     implicit: Option<Box<ImplicitPressure>>,
     /// `sort_points`' scratch: which points the reordering has placed.
     sort_done: Vec<bool>,
+    /// `apply_liquid_wall_shear`'s scratch: this step's lines, and per
+    /// wall side (x_min, x_max, z_min, z_max) and tangent node the first
+    /// line's index (`u32::MAX`: none).
+    film_lines: Vec<FilmLine>,
+    film_lookup: Vec<u32>,
 }
 
 /// What the map's release test of unilateral walls
@@ -890,6 +933,8 @@ impl Mpm {
             liquid_force_field: None,
             implicit: None,
             sort_done: Vec::new(),
+            film_lines: Vec::new(),
+            film_lookup: vec![u32::MAX; 4 * grid.node_dims()[0].max(grid.node_dims()[1])],
             state,
         };
         if mpm.params.implicit_pressure {
@@ -1991,33 +2036,30 @@ impl Mpm {
     /// this by orders of magnitude; where a deep flow runs along a wall,
     /// 3 ν / d² is small.
     fn apply_liquid_wall_shear(&mut self) {
-        if !self.params.liquid_film_shear || self.state.liquid.set.is_empty() {
+        let Some(reading) = self.params.liquid_film_shear else { return };
+        if self.state.liquid.set.is_empty() {
             return;
         }
         let (dt, h, tol) = (self.params.dt, self.grid.h, self.mass_tolerance);
         let nu = self.params.viscosity / self.params.liquid_density;
-        let rho_h = self.params.liquid_density * h;
-        for w in &self.fixities.walls {
-            let Some(line) = self.wall_line(w) else { continue };
-            let tangent = 1 - w.axis;
-            if self.mask[w.node][w.axis] != 0.0 || self.mask[w.node][tangent] == 0.0 {
-                continue;
+        let mut lines = std::mem::take(&mut self.film_lines);
+        self.walk_film_lines(&mut lines);
+        match reading {
+            FilmDepth::Covered => self.measure_film_depths(&mut lines),
+            FilmDepth::LineMass => {
+                let rho_h = self.params.liquid_density * h;
+                lines.iter_mut().for_each(|f| f.depth = f.mass / rho_h);
             }
-            let (mut mass, mut last) = (0.0, line.first);
-            for (q, node) in line.nodes(&self.sums, self.touched_range(), tol) {
-                mass += self.sums[node].mass_l;
-                last = q;
-            }
-            if mass <= tol {
-                continue;
-            }
+        }
+        for f in &lines {
+            let (line, tangent) = (f.line, 1 - f.axis);
             let reaches_a_wall =
-                (last - line.opposite) * line.inward >= 0 && self.mask[line.node_at(line.opposite)][w.axis] == 0.0;
+                (f.last - line.opposite) * line.inward >= 0 && self.mask[line.node_at(line.opposite)][f.axis] == 0.0;
             let rate = if reaches_a_wall {
                 let gap = (line.opposite - line.position).abs() as f64 * h;
                 6.0 * nu / (gap * gap)
             } else {
-                let depth = mass / rho_h;
+                let depth = f.depth;
                 3.0 * nu / (depth * depth)
             };
             let decay = 1.0 / (1.0 + dt * rate);
@@ -2029,6 +2071,153 @@ impl Mpm {
                 let a = &mut self.accel[node].a[1][tangent];
                 *a = ((v + dt * *a) * decay - v) / dt;
             }
+        }
+        self.film_lines = lines;
+    }
+
+    /// The slip walls' lines of nodes that carry liquid in this step
+    /// (`lines`, cleared first), each with its liquid mass and last node,
+    /// and `film_lookup` pointing at them by wall side and tangent node.
+    fn walk_film_lines(&mut self, lines: &mut Vec<FilmLine>) {
+        lines.clear();
+        self.film_lookup.fill(u32::MAX);
+        let stride = self.film_lookup.len() / 4;
+        let row = self.grid.node_dims()[0];
+        for w in &self.fixities.walls {
+            let Some(line) = self.wall_line(w) else { continue };
+            let tangent = 1 - w.axis;
+            if self.mask[w.node][w.axis] != 0.0 || self.mask[w.node][tangent] == 0.0 {
+                continue;
+            }
+            let (mut mass, mut last) = (0.0, line.first);
+            for (q, node) in line.nodes(&self.sums, self.touched_range(), self.mass_tolerance) {
+                mass += self.sums[node].mass_l;
+                last = q;
+            }
+            if mass <= self.mass_tolerance {
+                continue;
+            }
+            let along = if w.axis == 0 { w.node / row } else { w.node % row };
+            let slot = Self::film_slot(w.axis, line.inward) * stride + along;
+            lines.push(FilmLine {
+                line,
+                axis: w.axis,
+                mass,
+                last,
+                covered: [f64::INFINITY, f64::NEG_INFINITY],
+                beyond: 0.0,
+                depth: 0.0,
+                next: self.film_lookup[slot],
+            });
+            self.film_lookup[slot] = (lines.len() - 1) as u32;
+        }
+    }
+
+    /// The wall side's slot in `film_lookup`: x_min, x_max, z_min, z_max.
+    fn film_slot(axis: usize, inward: isize) -> usize {
+        2 * axis + usize::from(inward < 0)
+    }
+
+    /// Each line's film `depth`: the depth its liquid mass M stands for
+    /// over the part c of its strip (the box's part of the tributary width
+    /// h along the wall, centred on its node) that the liquid points'
+    /// domains cover, d = M / (ρ_L c). A line whose strip no point's
+    /// domain reaches (the node past a film's end) holds only what the
+    /// end's points map onto it: its mass is counted with the film's end
+    /// (shared equally between the lines beside it with points), and it
+    /// takes the deeper of their depths, or M / (ρ_L h) if neither has
+    /// points. Counted are
+    /// the points off the wall no farther than half an element past the
+    /// last node the line's walk reached (a drop above an empty node is
+    /// not the film). Postcondition: a film of depth d gives every line
+    /// d, where it covers a strip wholly or in part and past its end
+    /// (`covered` treats the points over a strip as one run along the
+    /// wall); where it covers the strip wholly, d = M / (ρ_L h) as before
+    /// session 46.
+    fn measure_film_depths(&self, lines: &mut [FilmLine]) {
+        const GHOST: isize = crate::grid::GHOST as isize;
+        if lines.is_empty() {
+            return;
+        }
+        let (h, origin, dims) = (self.grid.h, self.grid.origin, self.grid.node_dims());
+        let stride = self.film_lookup.len() / 4;
+        let set = &self.state.liquid.set;
+        let wall_of = |f: &FilmLine| origin[f.axis] + (f.line.position - GHOST) as f64 * h;
+        for x in &set.x {
+            for slot in 0..4 {
+                let (axis, tangent) = (slot / 2, 1 - slot / 2);
+                let domain = [x[tangent] - set.half[tangent], x[tangent] + set.half[tangent]];
+                let strip_of = |at: f64| ((at - origin[tangent]) / h + 0.5).floor() as isize + GHOST;
+                for along in strip_of(domain[0])..=strip_of(domain[1]) {
+                    if !(0..dims[tangent] as isize).contains(&along) {
+                        continue;
+                    }
+                    let mut next = self.film_lookup[slot * stride + along as usize];
+                    while next != u32::MAX {
+                        let f = &mut lines[next as usize];
+                        let off = (x[axis] - wall_of(f)) * f.line.inward as f64;
+                        let reach = ((f.last - f.line.position) * f.line.inward) as f64 * h + 0.5 * h;
+                        if off <= reach {
+                            f.covered = [f.covered[0].min(domain[0]), f.covered[1].max(domain[1])];
+                        }
+                        next = f.next;
+                    }
+                }
+            }
+        }
+        let rho = self.params.liquid_density;
+        let box_hi = [origin[0] + self.grid.elements[0] as f64 * h, origin[1] + self.grid.elements[1] as f64 * h];
+        let along_of = |f: &FilmLine| {
+            let tangent = 1 - f.axis;
+            let node = f.line.wall_node;
+            let stored = if f.axis == 0 { node / dims[0] } else { node % dims[0] };
+            let at = origin[tangent] + (stored as isize - GHOST) as f64 * h;
+            (tangent, stored, [(at - 0.5 * h).max(origin[tangent]), (at + 0.5 * h).min(box_hi[tangent])])
+        };
+        let has_points = |f: &FilmLine| f.covered[0] <= f.covered[1];
+        // The lines beside one without points (same wall side, one node
+        // along): each gets an equal share of its mass.
+        let beside = |lines: &[FilmLine], k: usize, out: &mut [u32; 4]| -> usize {
+            let (tangent, stored, _) = along_of(&lines[k]);
+            let slot = Self::film_slot(lines[k].axis, lines[k].line.inward);
+            let mut n = 0;
+            for at in [stored.wrapping_sub(1), stored + 1] {
+                if at >= dims[tangent] {
+                    continue;
+                }
+                let mut next = self.film_lookup[slot * stride + at];
+                while next != u32::MAX {
+                    if has_points(&lines[next as usize]) && n < out.len() {
+                        out[n] = next;
+                        n += 1;
+                    }
+                    next = lines[next as usize].next;
+                }
+            }
+            n
+        };
+        let mut found = [0u32; 4];
+        for k in 0..lines.len() {
+            if has_points(&lines[k]) {
+                continue;
+            }
+            let n = beside(lines, k, &mut found);
+            for &b in &found[..n] {
+                lines[b as usize].beyond += lines[k].mass / n as f64;
+            }
+        }
+        for f in lines.iter_mut() {
+            let (_, _, strip) = along_of(f);
+            let covered = f.covered[1].min(strip[1]) - f.covered[0].max(strip[0]);
+            f.depth = if covered > 0.0 { (f.mass + f.beyond) / (rho * covered) } else { 0.0 };
+        }
+        for k in 0..lines.len() {
+            if lines[k].depth > 0.0 {
+                continue;
+            }
+            let n = beside(lines, k, &mut found);
+            let deeper = found[..n].iter().map(|&b| lines[b as usize].depth).fold(0.0, f64::max);
+            lines[k].depth = if deeper > 0.0 { deeper } else { lines[k].mass / (rho * h) };
         }
     }
 

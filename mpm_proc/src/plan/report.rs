@@ -400,7 +400,9 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
             },
             match m.liquid_wall_shear {
                 MpmLiquidWallShear::LaminarFilm =>
-                    "the liquid slipping along a wall feels a laminar film's shear 3 mu U / d (Nusselt)",
+                    "the liquid slipping along a wall feels a laminar film's shear 3 mu U / d (Nusselt), d over the part of a line the liquid covers",
+                MpmLiquidWallShear::LaminarFilmLineMass =>
+                    "the liquid slipping along a wall feels a laminar film's shear 3 mu U / d (Nusselt), d over the whole line (session 45's reading)",
                 MpmLiquidWallShear::None => "the liquid slips freely along the walls",
             },
             m.damping,
