@@ -220,21 +220,27 @@ pub fn run(
     rayon::scope(|_| run_on_pool(scene, opts, stop, progress))
 }
 
-/// The layout version of an MPM checkpoint ([`MpmCheckpoint`]), written as
-/// its first field. bincode stores no field names, so a checkpoint of
-/// another layout could decode into wrong numbers rather than fail: bump
-/// this whenever `MpmCheckpoint` or anything it holds (`MpmState`, its
-/// point sets, `Gathered`, `GravityPhase`, `LiquidImpulse`) changes its
-/// fields. Version 1 is the first stored (session 46).
-pub const CHECKPOINT_VERSION: u32 = 1;
+/// The layout version of an MPM checkpoint ([`MpmCheckpoint`]). bincode
+/// stores no field names, so a checkpoint of another layout could decode
+/// into wrong numbers rather than fail: bump this whenever
+/// `MpmCheckpoint` or anything it holds (`MpmState`, its point sets,
+/// `Gathered`, `GravityPhase`, `LiquidImpulse`) changes its fields.
+/// Version 1 is the first stored (session 46).
+pub const CHECKPOINT_VERSION: u8 = 1;
+
+/// The checkpoint's first four bytes, written as they are: "MPM" and the
+/// version. Fixed-width, so that a checkpoint written before they were
+/// (whose first bytes are its time's, a float) reads as one by chance
+/// once in 2³² rather than once in 2⁸ as a one-byte varint would.
+const CHECKPOINT_TAG: [u8; 4] = [b'M', b'P', b'M', CHECKPOINT_VERSION];
 
 /// An MPM run's checkpoint ([`Solver::checkpoint`]): the state, what the
 /// frames gathered and what the set-up measured. Written borrowing the
 /// run's parts (no copy of the point arrays), read owning them.
 #[derive(Serialize, Deserialize)]
 struct MpmCheckpoint<S = MpmState, G = Gathered, P = GravityPhase> {
-    /// [`CHECKPOINT_VERSION`] when written.
-    version: u32,
+    /// [`CHECKPOINT_TAG`] when written.
+    tag: [u8; 4],
     state: S,
     gathered: G,
     gravity: P,
@@ -261,16 +267,17 @@ fn decode_checkpoint(
     file: checkpoint::CheckpointFile,
     path: &Path,
 ) -> Result<(checkpoint::CheckpointFile, MpmCheckpoint), checkpoint::CheckpointError> {
-    let version =
-        bincode::serde::decode_from_slice::<u32, _>(&file.solver, bincode::config::standard()).map(|(v, _)| v);
-    if version.as_ref().ok() != Some(&CHECKPOINT_VERSION) {
-        let found = version.map_or("no readable version".to_string(), |v| format!("layout version {v}"));
+    let found = match file.solver.get(..4) {
+        Some(&[b'M', b'P', b'M', v]) if v == CHECKPOINT_VERSION => None,
+        Some(&[b'M', b'P', b'M', v]) => Some(format!("layout version {v}")),
+        _ => Some("no layout version (one written before the version was stored has none)".to_string()),
+    };
+    if let Some(found) = found {
         return Err(checkpoint::CheckpointError::Damaged {
             path: path.to_path_buf(),
             why: format!(
-                "its MPM state has {found} (one written before the version was stored has none: its first \
-                 bytes read as any number), this mpm_proc resumes version {CHECKPOINT_VERSION}: resume with the mpm_proc that \
-                 wrote it, or start the run again without --resume"
+                "its MPM state has {found}, this mpm_proc resumes version {CHECKPOINT_VERSION}: resume with the \
+                 mpm_proc that wrote it, or start the run again without --resume"
             ),
         });
     }
@@ -483,7 +490,7 @@ impl Solver for MpmRun<'_> {
 
     fn checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
         let c: MpmCheckpoint<&MpmState, &Gathered, &GravityPhase> = MpmCheckpoint {
-            version: CHECKPOINT_VERSION,
+            tag: CHECKPOINT_TAG,
             state: &self.mpm.state,
             gathered: &self.gathered,
             gravity: &self.gravity,
@@ -834,20 +841,18 @@ mod checkpoint_tests {
 
     #[test]
     fn a_checkpoint_of_another_layout_is_refused_by_its_version() {
-        let encode = |v: u32| bincode::serde::encode_to_vec(v, bincode::config::standard()).expect("encodes");
+        let tagged = |v: u8, rest: &[u8]| [&[b'M', b'P', b'M', v][..], rest].concat();
         // Another version, whatever follows it: named, with the way out.
-        let mut older = encode(CHECKPOINT_VERSION - 1);
-        older.extend_from_slice(&[0u8; 64]);
-        let why = refusal(older);
-        assert!(why.contains(&format!("layout version {}", CHECKPOINT_VERSION - 1)), "{why}");
+        let why = refusal(tagged(CHECKPOINT_VERSION + 1, &[0u8; 64]));
+        assert!(why.contains(&format!("layout version {}", CHECKPOINT_VERSION + 1)), "{why}");
         assert!(why.contains(&format!("resumes version {CHECKPOINT_VERSION}")), "{why}");
         assert!(why.contains("without --resume"), "{why}");
-        // Not even a version's bytes.
-        assert!(refusal(Vec::new()).contains("no readable version"));
+        // Written before the tag: its first bytes are a float's.
+        let old = bincode::serde::encode_to_vec(0.0123_f64, bincode::config::standard()).expect("encodes");
+        assert!(refusal(old).contains("no layout version"));
+        assert!(refusal(Vec::new()).contains("no layout version"));
         // This version with a state cut short: the decoder's own refusal.
-        let mut cut = encode(CHECKPOINT_VERSION);
-        cut.extend_from_slice(&[1, 2, 3]);
-        let why = refusal(cut);
+        let why = refusal(tagged(CHECKPOINT_VERSION, &[1, 2, 3]));
         assert!(why.contains("does not decode"), "{why}");
     }
 }

@@ -542,22 +542,26 @@ struct FilmLine {
     line: WallLine,
     /// The wall component's axis (its normal).
     axis: usize,
-    /// The liquid mass on the line's nodes, kg/m.
-    mass: f64,
     /// Position of the last node inward that carries liquid.
     last: isize,
-    /// Along the wall, the lowest and highest reach (centre ∓ half-width)
-    /// of the liquid points whose domains overlap this line's strip, m:
-    /// the part of the strip they cover (empty: lowest > highest).
+    /// The liquid mass on the line's nodes, kg/m.
+    mass: f64,
+    /// The wall's coordinate along `axis`, and how far off it a liquid
+    /// point may lie and count for this line (half an element past the
+    /// last node with liquid), m.
+    wall: f64,
+    reach: f64,
+    /// The line's strip along the wall: its node ± h/2, clipped to the
+    /// box, m.
+    strip: [f64; 2],
+    /// Along the wall, the lowest and highest reach of the counted liquid
+    /// points' domains within the strip, m (empty: lowest ≥ highest).
     covered: [f64; 2],
-    /// The liquid mass of the lines beside it that no point's domain
-    /// reaches (what this line's film maps past its end), its share, kg/m.
-    beyond: f64,
+    /// The counted points' water volume within the strip (each point's
+    /// m/ρ_L times the share of its domain inside the strip), m²/m.
+    volume: f64,
     /// The film's depth the line's shear uses, m.
     depth: f64,
-    /// The next line of the same wall side and tangent position
-    /// (`u32::MAX`: none): a held gate and the box's wall can share one.
-    next: u32,
 }
 
 /// Per-element fields.
@@ -849,6 +853,7 @@ impl Mpm {
     /// APIC; point ids empty or each point's once (`PointSet::check_ids`;
     /// panics otherwise).
     pub fn new(params: Params, grid: Grid, state: MpmState, fixities: Fixities) -> Self {
+        let wall_count = fixities.walls.len();
         // Scene validation refuses the pair with the fix; this guards a
         // hand-built `Params` (bilinear D_p is singular on grid lines).
         assert!(
@@ -933,7 +938,7 @@ impl Mpm {
             liquid_force_field: None,
             implicit: None,
             sort_done: Vec::new(),
-            film_lines: Vec::new(),
+            film_lines: Vec::with_capacity(wall_count),
             film_lookup: vec![u32::MAX; 4 * grid.node_dims()[0].max(grid.node_dims()[1])],
             state,
         };
@@ -2012,20 +2017,24 @@ impl Mpm {
     /// Per wall component held along its normal whose tangent is free, the
     /// line of nodes off the wall (the ghost nodes behind it, the wall
     /// node, then inward while the nodes carry liquid; a wall node without
-    /// liquid has no film on it) carries the liquid mass M = ρ_L d h per
-    /// metre of width (the shape functions partition unity across the
-    /// line, so M is the mass the line's tributary width h holds). Every
-    /// node on it has its tangential liquid velocity scaled by
-    /// 1 / (1 + Δt · 3 ν / d²), backward Euler, so no step reverses it.
-    /// Where the liquid fills the line up to a held wall opposite, a gap
-    /// W away, both walls' lines cover it: each applies half of a
-    /// channel's rate 12 ν / W² (plane Poiseuille flow, a film of depth
-    /// W/2 on each wall), d = W the gap itself.
+    /// liquid has no film on it) reads a film depth d
+    /// (`walk_film_lines`): under [`FilmDepth::Covered`] the water volume
+    /// of the liquid points over the part of the line's strip they cover
+    /// (`measure_film_depths`; a film's ends at their own depth), under
+    /// [`FilmDepth::LineMass`] the line's nodal liquid mass over ρ_L h
+    /// (session 45's reading: a line covered only in part, by a share c,
+    /// reads c d and is slowed 1/c² too fast, and the line past a film's
+    /// end, holding a sliver, is all but stopped; docs/mpm.md, "The
+    /// film's ends"). Every node on the line has its tangential liquid
+    /// velocity scaled by 1 / (1 + Δt · 3 ν / d²), backward Euler, so no
+    /// step reverses it. Where the liquid fills the line up to a held
+    /// wall opposite, a gap W away, both walls' lines cover it: each
+    /// applies half of a channel's rate 12 ν / W² (plane Poiseuille flow,
+    /// a film of depth W/2 on each wall), d = W the gap itself.
     ///
-    /// Limit: a line the liquid covers only in part along the wall (a
-    /// film's tip, the end of a column of water) reads as a thinner film
-    /// and is slowed more (by 1/c² at a share c covered), unless it
-    /// reaches a wall opposite; docs/mpm.md, "The liquid's wall shear".
+    /// Limit: the law acts only where the wall holds the normal in the
+    /// step; a unilateral wall that lets go (nothing presses the liquid
+    /// on it) leaves the liquid there free to slip for that step.
     ///
     /// Precondition: the nodes' accelerations from `solve_nodes`, before
     /// the implicit pore pressure's projection (which then sees the wall's
@@ -2079,10 +2088,12 @@ impl Mpm {
     /// (`lines`, cleared first), each with its liquid mass and last node,
     /// and `film_lookup` pointing at them by wall side and tangent node.
     fn walk_film_lines(&mut self, lines: &mut Vec<FilmLine>) {
+        const GHOST: isize = crate::grid::GHOST as isize;
         lines.clear();
         self.film_lookup.fill(u32::MAX);
         let stride = self.film_lookup.len() / 4;
-        let row = self.grid.node_dims()[0];
+        let (h, origin, row) = (self.grid.h, self.grid.origin, self.grid.node_dims()[0]);
+        let far = [origin[0] + self.grid.elements[0] as f64 * h, origin[1] + self.grid.elements[1] as f64 * h];
         for w in &self.fixities.walls {
             let Some(line) = self.wall_line(w) else { continue };
             let tangent = 1 - w.axis;
@@ -2098,18 +2109,24 @@ impl Mpm {
                 continue;
             }
             let along = if w.axis == 0 { w.node / row } else { w.node % row };
+            let at = origin[tangent] + (along as isize - GHOST) as f64 * h;
             let slot = Self::film_slot(w.axis, line.inward) * stride + along;
+            // Only the box's walls are wall components (a gate's nodes are
+            // held apart, ghosts have no line): one line per slot.
+            debug_assert_eq!(self.film_lookup[slot], u32::MAX, "two lines at one wall node");
+            self.film_lookup[slot] = lines.len() as u32;
             lines.push(FilmLine {
                 line,
                 axis: w.axis,
-                mass,
                 last,
+                mass,
+                wall: origin[w.axis] + (line.position - GHOST) as f64 * h,
+                reach: ((last - line.position) * line.inward) as f64 * h + 0.5 * h,
+                strip: [(at - 0.5 * h).max(origin[tangent]), (at + 0.5 * h).min(far[tangent])],
                 covered: [f64::INFINITY, f64::NEG_INFINITY],
-                beyond: 0.0,
+                volume: 0.0,
                 depth: 0.0,
-                next: self.film_lookup[slot],
             });
-            self.film_lookup[slot] = (lines.len() - 1) as u32;
         }
     }
 
@@ -2118,22 +2135,21 @@ impl Mpm {
         2 * axis + usize::from(inward < 0)
     }
 
-    /// Each line's film `depth`: the depth its liquid mass M stands for
-    /// over the part c of its strip (the box's part of the tributary width
-    /// h along the wall, centred on its node) that the liquid points'
-    /// domains cover, d = M / (ρ_L c). A line whose strip no point's
-    /// domain reaches (the node past a film's end) holds only what the
-    /// end's points map onto it: its mass is counted with the film's end
-    /// (shared equally between the lines beside it with points), and it
-    /// takes the deeper of their depths, or M / (ρ_L h) if neither has
-    /// points. Counted are
-    /// the points off the wall no farther than half an element past the
-    /// last node the line's walk reached (a drop above an empty node is
-    /// not the film). Postcondition: a film of depth d gives every line
-    /// d, where it covers a strip wholly or in part and past its end
-    /// (`covered` treats the points over a strip as one run along the
-    /// wall); where it covers the strip wholly, d = M / (ρ_L h) as before
-    /// session 46.
+    /// Each line's film `depth`: the water volume of the liquid points
+    /// within its strip (each point's m/ρ_L times the share of its domain
+    /// inside the strip) over the length c of the strip their domains
+    /// cover, d = V / c: the mean depth of the film where it is, whether
+    /// it covers the strip wholly (then V / h, which for a film is the
+    /// line's nodal mass over ρ_L h) or in part (a film's end). A line
+    /// whose strip no point's domain enters (the node past a film's end,
+    /// which holds only what the end's points' shape functions map onto
+    /// it) takes the deeper of its neighbours' depths along the wall, or
+    /// M / (ρ_L h) if neither has points. Counted are the points off the
+    /// wall no farther than half an element past the last node the line's
+    /// walk reached (a drop above an empty node is not the film).
+    /// Postcondition: a film of depth d gives every line d, wherever its
+    /// ends lie in the strips (`covered` treats the points over a strip
+    /// as one run along the wall).
     fn measure_film_depths(&self, lines: &mut [FilmLine]) {
         const GHOST: isize = crate::grid::GHOST as isize;
         if lines.is_empty() {
@@ -2142,82 +2158,58 @@ impl Mpm {
         let (h, origin, dims) = (self.grid.h, self.grid.origin, self.grid.node_dims());
         let stride = self.film_lookup.len() / 4;
         let set = &self.state.liquid.set;
-        let wall_of = |f: &FilmLine| origin[f.axis] + (f.line.position - GHOST) as f64 * h;
-        for x in &set.x {
-            for slot in 0..4 {
+        let rho = self.params.liquid_density;
+        let mut sides = [false; 4];
+        for f in lines.iter() {
+            sides[Self::film_slot(f.axis, f.line.inward)] = true;
+        }
+        for (x, m) in set.x.iter().zip(&set.mass) {
+            for slot in (0..4).filter(|&k| sides[k]) {
                 let (axis, tangent) = (slot / 2, 1 - slot / 2);
-                let domain = [x[tangent] - set.half[tangent], x[tangent] + set.half[tangent]];
+                let half = set.half[tangent];
+                let domain = [x[tangent] - half, x[tangent] + half];
                 let strip_of = |at: f64| ((at - origin[tangent]) / h + 0.5).floor() as isize + GHOST;
                 for along in strip_of(domain[0])..=strip_of(domain[1]) {
                     if !(0..dims[tangent] as isize).contains(&along) {
                         continue;
                     }
-                    let mut next = self.film_lookup[slot * stride + along as usize];
-                    while next != u32::MAX {
-                        let f = &mut lines[next as usize];
-                        let off = (x[axis] - wall_of(f)) * f.line.inward as f64;
-                        let reach = ((f.last - f.line.position) * f.line.inward) as f64 * h + 0.5 * h;
-                        if off <= reach {
-                            f.covered = [f.covered[0].min(domain[0]), f.covered[1].max(domain[1])];
-                        }
-                        next = f.next;
+                    let k = self.film_lookup[slot * stride + along as usize];
+                    if k == u32::MAX {
+                        continue;
+                    }
+                    let f = &mut lines[k as usize];
+                    let inside = [domain[0].max(f.strip[0]), domain[1].min(f.strip[1])];
+                    let off = (x[axis] - f.wall) * f.line.inward as f64;
+                    if inside[1] > inside[0] && off <= f.reach {
+                        f.volume += m / rho * (inside[1] - inside[0]) / (2.0 * half);
+                        f.covered = [f.covered[0].min(inside[0]), f.covered[1].max(inside[1])];
                     }
                 }
-            }
-        }
-        let rho = self.params.liquid_density;
-        let box_hi = [origin[0] + self.grid.elements[0] as f64 * h, origin[1] + self.grid.elements[1] as f64 * h];
-        let along_of = |f: &FilmLine| {
-            let tangent = 1 - f.axis;
-            let node = f.line.wall_node;
-            let stored = if f.axis == 0 { node / dims[0] } else { node % dims[0] };
-            let at = origin[tangent] + (stored as isize - GHOST) as f64 * h;
-            (tangent, stored, [(at - 0.5 * h).max(origin[tangent]), (at + 0.5 * h).min(box_hi[tangent])])
-        };
-        let has_points = |f: &FilmLine| f.covered[0] <= f.covered[1];
-        // The lines beside one without points (same wall side, one node
-        // along): each gets an equal share of its mass.
-        let beside = |lines: &[FilmLine], k: usize, out: &mut [u32; 4]| -> usize {
-            let (tangent, stored, _) = along_of(&lines[k]);
-            let slot = Self::film_slot(lines[k].axis, lines[k].line.inward);
-            let mut n = 0;
-            for at in [stored.wrapping_sub(1), stored + 1] {
-                if at >= dims[tangent] {
-                    continue;
-                }
-                let mut next = self.film_lookup[slot * stride + at];
-                while next != u32::MAX {
-                    if has_points(&lines[next as usize]) && n < out.len() {
-                        out[n] = next;
-                        n += 1;
-                    }
-                    next = lines[next as usize].next;
-                }
-            }
-            n
-        };
-        let mut found = [0u32; 4];
-        for k in 0..lines.len() {
-            if has_points(&lines[k]) {
-                continue;
-            }
-            let n = beside(lines, k, &mut found);
-            for &b in &found[..n] {
-                lines[b as usize].beyond += lines[k].mass / n as f64;
             }
         }
         for f in lines.iter_mut() {
-            let (_, _, strip) = along_of(f);
-            let covered = f.covered[1].min(strip[1]) - f.covered[0].max(strip[0]);
-            f.depth = if covered > 0.0 { (f.mass + f.beyond) / (rho * covered) } else { 0.0 };
+            let covered = f.covered[1] - f.covered[0];
+            f.depth = if covered > 0.0 { f.volume / covered } else { 0.0 };
         }
         for k in 0..lines.len() {
-            if lines[k].depth > 0.0 {
+            if lines[k].covered[1] > lines[k].covered[0] {
                 continue;
             }
-            let n = beside(lines, k, &mut found);
-            let deeper = found[..n].iter().map(|&b| lines[b as usize].depth).fold(0.0, f64::max);
-            lines[k].depth = if deeper > 0.0 { deeper } else { lines[k].mass / (rho * h) };
+            let (f, tangent) = (lines[k], 1 - lines[k].axis);
+            let node = f.line.wall_node;
+            let along = if f.axis == 0 { node / dims[0] } else { node % dims[0] };
+            let slot = Self::film_slot(f.axis, f.line.inward);
+            let mut deeper = 0.0f64;
+            for beside in [along.wrapping_sub(1), along + 1] {
+                if beside >= dims[tangent] {
+                    continue;
+                }
+                let b = self.film_lookup[slot * stride + beside];
+                if b != u32::MAX && lines[b as usize].covered[1] > lines[b as usize].covered[0] {
+                    deeper = deeper.max(lines[b as usize].depth);
+                }
+            }
+            lines[k].depth = if deeper > 0.0 { deeper } else { f.mass / (rho * h) };
         }
     }
 

@@ -1,5 +1,6 @@
-//! Refactoring guard: four short runs through the real binaries (a dry DEM
-//! column, a water block, a coupled saturated bed, a saturated MPM column)
+//! Refactoring guard: five short runs through the real binaries (a dry DEM
+//! column, a water block, a coupled saturated bed, a saturated MPM column,
+//! and the same under session 45's reading of the liquid film's depth)
 //! must record byte-identical states to those kept in
 //! `tests/golden/state_hashes.txt`.
 //!
@@ -93,7 +94,7 @@ fn parse(text: &str) -> Hashes {
 
 fn render(h: &Hashes) -> String {
     let mut s = String::from(
-        "# Recorded-state hashes of four short runs (tests/tests/state_hashes.rs).\n\
+        "# Recorded-state hashes of five short runs (tests/tests/state_hashes.rs).\n\
          # run  recording  topic  messages:fnv1a64. Rewrite with SGF_BLESS=1 only\n\
          # when a commit means to change the physics, and say so in it.\n",
     );
@@ -104,9 +105,9 @@ fn render(h: &Hashes) -> String {
 }
 
 #[test]
-fn four_short_runs_record_the_kept_states_byte_for_byte() {
+fn short_runs_record_the_kept_states_byte_for_byte() {
     let q = ["--set", "output.stop_at_rest=false"];
-    let runs: [(&str, &str, Vec<&str>); 4] = [
+    let runs: [(&str, &str, Vec<&str>); 5] = [
         (
             "dry_dem",
             "scenes/validation/dry_small.toml",
@@ -122,6 +123,19 @@ fn four_short_runs_record_the_kept_states_byte_for_byte() {
             "saturated_mpm",
             "scenes/ceccato2020/mpm_sat_h030.toml",
             [&q[..], &["--set", "output.end_time=0.02", "--set", "output.record_interval=0.005"]].concat(),
+        ),
+        // Session 45's reading of the liquid film's depth, kept as an
+        // option: its golden lines are the ones session 45 blessed for
+        // `saturated_mpm`, so the option reproduces those runs bit for bit.
+        (
+            "saturated_mpm_line_mass",
+            "scenes/ceccato2020/mpm_sat_h030.toml",
+            [
+                &q[..],
+                &["--set", "output.end_time=0.02", "--set", "output.record_interval=0.005"],
+                &["--set", "mpm.liquid_wall_shear=\"laminar_film_line_mass\""],
+            ]
+            .concat(),
         ),
     ];
     let mut got = Hashes::new();
