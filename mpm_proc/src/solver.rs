@@ -2163,13 +2163,25 @@ impl Mpm {
         for f in lines.iter() {
             sides[Self::film_slot(f.axis, f.line.inward)] = true;
         }
-        for (x, m) in set.x.iter().zip(&set.mass) {
+        let inv_h = 1.0 / h;
+        // Per side: (axis, tangent, the points' half-width along the wall,
+        // the water volume per kg and metre of domain inside a strip).
+        let side = |slot: usize| {
+            let (axis, tangent) = (slot / 2, 1 - slot / 2);
+            let half = set.half[tangent];
+            (axis, tangent, half, 1.0 / (rho * 2.0 * half))
+        };
+        for (x, &m) in set.x.iter().zip(&set.mass) {
             for slot in (0..4).filter(|&k| sides[k]) {
-                let (axis, tangent) = (slot / 2, 1 - slot / 2);
-                let half = set.half[tangent];
+                let (axis, tangent, half, per_kg_m) = side(slot);
                 let domain = [x[tangent] - half, x[tangent] + half];
-                let strip_of = |at: f64| ((at - origin[tangent]) / h + 0.5).floor() as isize + GHOST;
-                for along in strip_of(domain[0])..=strip_of(domain[1]) {
+                // A domain is at most an element wide: it spans the strip
+                // of its centre's nearest node and at most one beside it.
+                let at = (x[tangent] - origin[tangent]) * inv_h;
+                let nearest = (at + 0.5).floor();
+                let (reach_back, reach_on) = (at - half * inv_h < nearest - 0.5, at + half * inv_h > nearest + 0.5);
+                let nearest = nearest as isize + GHOST;
+                for along in nearest - isize::from(reach_back)..=nearest + isize::from(reach_on) {
                     if !(0..dims[tangent] as isize).contains(&along) {
                         continue;
                     }
@@ -2179,11 +2191,11 @@ impl Mpm {
                     }
                     let f = &mut lines[k as usize];
                     let inside = [domain[0].max(f.strip[0]), domain[1].min(f.strip[1])];
-                    let off = (x[axis] - f.wall) * f.line.inward as f64;
-                    if inside[1] > inside[0] && off <= f.reach {
-                        f.volume += m / rho * (inside[1] - inside[0]) / (2.0 * half);
-                        f.covered = [f.covered[0].min(inside[0]), f.covered[1].max(inside[1])];
+                    if inside[1] <= inside[0] || (x[axis] - f.wall) * f.line.inward as f64 > f.reach {
+                        continue;
                     }
+                    f.volume += m * per_kg_m * (inside[1] - inside[0]);
+                    f.covered = [f.covered[0].min(inside[0]), f.covered[1].max(inside[1])];
                 }
             }
         }
