@@ -220,7 +220,7 @@ pub fn run(
     rayon::scope(|_| run_on_pool(scene, opts, stop, progress))
 }
 
-/// The layout version of an MPM checkpoint ([`MpmCheckpoint`]). bincode
+/// The layout version of an MPM checkpoint (`MpmCheckpoint`). bincode
 /// stores no field names, so a checkpoint of another layout could decode
 /// into wrong numbers rather than fail: bump this whenever
 /// `MpmCheckpoint` or anything it holds (`MpmState`, its point sets,

@@ -173,9 +173,12 @@ fn a_film_on_a_slope_reaches_nusselts_velocity() {
 /// covered one (its strip is half covered) and the node past it a sliver,
 /// so a depth read from a line's mass alone slows the ends too fast
 /// (session 45's rule: the rear and front elements at 0.135 and 0.161 U0
-/// at T, the whole film 0.347). Read over the part of the strip the
-/// points cover, with the sliver past the end counted with the end, every
-/// line has the film's depth: 0.3674, 0.3693 and 0.3678 U0. Gravity is
+/// at T, the whole film 0.347). Read as the points' water volume over the
+/// length of the strip they cover, the line past the end taking the
+/// end's depth, every line has the film's depth: 0.3680 U0 at both ends,
+/// in the middle and over the whole film, with the ends on the strips'
+/// edges and with the film shifted 0.9 mm (the rear end's strip 0.05 h
+/// covered, the front leaving its strip at once). Gravity is
 /// off, so the film does not spread, and the floor holds both ways: with
 /// nothing pressing the film onto a unilateral floor, the floor lets go
 /// in some steps and the film then feels no wall (the middle at 0.47 U0

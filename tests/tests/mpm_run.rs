@@ -671,8 +671,8 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     // (the AFLIP blend's per-step share) and below what the re-projection
     // moved (pile edge 0.30, front 0.46, the 50 / 75 / 90 % shares 0.09,
     // 0.21, 0.33). With the liquid's wall shear (the film's ends read at
-    // their own depth, session 46) the 0.5 % front measures 1.131 ->
-    // 1.168 and the pile edge 0.700 -> 0.694 (session 45's whole-line
+    // their own depth, session 46) the 0.5 % front measures 1.130 ->
+    // 1.167 and the pile edge 0.700 -> 0.694 (session 45's whole-line
     // depth: 1.042, 1.072, 1.132 at courant 0.5, 0.25, 0.125); the front
     // is held to 0.15 L0 here, a third of the re-projection's.
     // The top elements of the thin sheet beyond the pile are held free
@@ -682,8 +682,8 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     // ahead along the floor: the body's shares are held to the same
     // 0.06 L0; the sheet's 0.5 % front, the liquid front and the thin
     // deposit's edge are not converged in the step (measured, session
-    // 46: 0.5 % front 1.508 -> 1.689, liquid front 2.284 -> 2.486, pile
-    // edge 0.695 -> 0.616; free slip 1.626 -> 1.750 and 3.04 -> 2.86). Session 45 held them to 0.09 L0 (1.249 ->
+    // 46: 0.5 % front 1.501 -> 1.681, liquid front 2.264 -> 2.436, pile
+    // edge 0.695 -> 0.615; free slip 1.626 -> 1.750 and 3.04 -> 2.86). Session 45 held them to 0.09 L0 (1.249 ->
     // 1.272, 1.375 -> 1.406), but that came from the film law's depth
     // read over a whole line, which slows a film's partly covered end by
     // 1/c² (`liquid_wall_shear = "laminar_film_line_mass"`; the film
