@@ -527,8 +527,8 @@ impl WallLine {
 /// off a wall (`Params::liquid_film_shear`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FilmDepth {
-    /// The line's liquid mass over the part of its strip the liquid
-    /// points cover (`"laminar_film"`).
+    /// The liquid points' water volume within the line's strip over the
+    /// part of the strip they cover (`"laminar_film"`).
     Covered,
     /// The line's liquid mass over its whole strip
     /// (`"laminar_film_line_mass"`, session 45).
@@ -759,8 +759,8 @@ pub struct Mpm {
     /// `sort_points`' scratch: which points the reordering has placed.
     sort_done: Vec<bool>,
     /// `apply_liquid_wall_shear`'s scratch: this step's lines, and per
-    /// wall side (x_min, x_max, z_min, z_max) and tangent node the first
-    /// line's index (`u32::MAX`: none).
+    /// wall side (x_min, x_max, z_min, z_max) and tangent node the line's
+    /// index (`u32::MAX`: none).
     film_lines: Vec<FilmLine>,
     film_lookup: Vec<u32>,
 }

@@ -467,9 +467,9 @@ pub struct MpmSpec {
     /// L0 per halving of the step and was still moving when the grains
     /// stopped. `laminar_film` gives each line of nodes off a wall the
     /// depth-averaged wall shear of a laminar film (Nusselt), τ = 3 μ Ū / d,
-    /// d the liquid depth the line's nodal mass stands for over the part
-    /// of its strip the liquid points cover (since session 46; a film's
-    /// end has its own depth), implicit in the step: dŪ/dt = −3 ν Ū / d².
+    /// d the liquid points' water volume over the part of the line's
+    /// strip they cover (since session 46; a film's end has its own
+    /// depth), implicit in the step: dŪ/dt = −3 ν Ū / d².
     /// Its only parameter is the liquid's viscosity; under the soil the
     /// drag outweighs it by orders of magnitude. `laminar_film_line_mass`
     /// reads d over the whole strip (session 45's rule), which slows a
@@ -827,8 +827,8 @@ pub enum MpmWallTangentUpdate {
 pub enum MpmLiquidWallShear {
     /// Free slip: the walls hold the liquid's normal velocity only.
     None,
-    /// A laminar film's depth-averaged wall shear, 3 μ Ū / d, d the depth
-    /// over the part of each line's strip the liquid covers.
+    /// A laminar film's depth-averaged wall shear, 3 μ Ū / d, d the
+    /// liquid's depth over the part of each line's strip it covers.
     #[default]
     LaminarFilm,
     /// The same with d the depth the line's liquid mass stands for over
