@@ -540,8 +540,10 @@ pub enum FilmDepth {
 #[derive(Debug, Clone, Copy)]
 struct FilmLine {
     line: WallLine,
-    /// The wall component's axis (its normal).
+    /// The wall component's axis (its normal), and its wall node's
+    /// stored index along the wall (column or row).
     axis: usize,
+    along: usize,
     /// Position of the last node inward that carries liquid.
     last: isize,
     /// The liquid mass on the line's nodes, kg/m.
@@ -562,6 +564,13 @@ struct FilmLine {
     volume: f64,
     /// The film's depth the line's shear uses, m.
     depth: f64,
+}
+
+impl FilmLine {
+    /// The length of the strip the counted points cover, m (0: none).
+    fn covered_length(&self) -> f64 {
+        (self.covered[1] - self.covered[0]).max(0.0)
+    }
 }
 
 /// Per-element fields.
@@ -2088,12 +2097,11 @@ impl Mpm {
     /// (`lines`, cleared first), each with its liquid mass and last node,
     /// and `film_lookup` pointing at them by wall side and tangent node.
     fn walk_film_lines(&mut self, lines: &mut Vec<FilmLine>) {
-        const GHOST: isize = crate::grid::GHOST as isize;
         lines.clear();
         self.film_lookup.fill(u32::MAX);
         let stride = self.film_lookup.len() / 4;
         let (h, origin, row) = (self.grid.h, self.grid.origin, self.grid.node_dims()[0]);
-        let far = [origin[0] + self.grid.elements[0] as f64 * h, origin[1] + self.grid.elements[1] as f64 * h];
+        let far = self.grid.far_corner();
         for w in &self.fixities.walls {
             let Some(line) = self.wall_line(w) else { continue };
             let tangent = 1 - w.axis;
@@ -2109,7 +2117,7 @@ impl Mpm {
                 continue;
             }
             let along = if w.axis == 0 { w.node / row } else { w.node % row };
-            let at = origin[tangent] + (along as isize - GHOST) as f64 * h;
+            let at = self.grid.node_position(w.node % row, w.node / row);
             let slot = Self::film_slot(w.axis, line.inward) * stride + along;
             // Only the box's walls are wall components (a gate's nodes are
             // held apart, ghosts have no line): one line per slot.
@@ -2118,11 +2126,12 @@ impl Mpm {
             lines.push(FilmLine {
                 line,
                 axis: w.axis,
+                along,
                 last,
                 mass,
-                wall: origin[w.axis] + (line.position - GHOST) as f64 * h,
+                wall: at[w.axis],
                 reach: ((last - line.position) * line.inward) as f64 * h + 0.5 * h,
-                strip: [(at - 0.5 * h).max(origin[tangent]), (at + 0.5 * h).min(far[tangent])],
+                strip: [(at[tangent] - 0.5 * h).max(origin[tangent]), (at[tangent] + 0.5 * h).min(far[tangent])],
                 covered: [f64::INFINITY, f64::NEG_INFINITY],
                 volume: 0.0,
                 depth: 0.0,
@@ -2166,14 +2175,14 @@ impl Mpm {
         let inv_h = 1.0 / h;
         // Per side: (axis, tangent, the points' half-width along the wall,
         // the water volume per kg and metre of domain inside a strip).
-        let side = |slot: usize| {
+        let side = [0, 1, 2, 3].map(|slot: usize| {
             let (axis, tangent) = (slot / 2, 1 - slot / 2);
             let half = set.half[tangent];
             (axis, tangent, half, 1.0 / (rho * 2.0 * half))
-        };
+        });
         for (x, &m) in set.x.iter().zip(&set.mass) {
             for slot in (0..4).filter(|&k| sides[k]) {
-                let (axis, tangent, half, per_kg_m) = side(slot);
+                let (axis, tangent, half, per_kg_m) = side[slot];
                 let domain = [x[tangent] - half, x[tangent] + half];
                 // A domain is at most an element wide: it spans the strip
                 // of its centre's nearest node and at most one beside it.
@@ -2200,24 +2209,22 @@ impl Mpm {
             }
         }
         for f in lines.iter_mut() {
-            let covered = f.covered[1] - f.covered[0];
+            let covered = f.covered_length();
             f.depth = if covered > 0.0 { f.volume / covered } else { 0.0 };
         }
         for k in 0..lines.len() {
-            if lines[k].covered[1] > lines[k].covered[0] {
+            let f = lines[k];
+            if f.covered_length() > 0.0 {
                 continue;
             }
-            let (f, tangent) = (lines[k], 1 - lines[k].axis);
-            let node = f.line.wall_node;
-            let along = if f.axis == 0 { node / dims[0] } else { node % dims[0] };
             let slot = Self::film_slot(f.axis, f.line.inward);
             let mut deeper = 0.0f64;
-            for beside in [along.wrapping_sub(1), along + 1] {
-                if beside >= dims[tangent] {
+            for beside in [f.along.wrapping_sub(1), f.along + 1] {
+                if beside >= dims[1 - f.axis] {
                     continue;
                 }
                 let b = self.film_lookup[slot * stride + beside];
-                if b != u32::MAX && lines[b as usize].covered[1] > lines[b as usize].covered[0] {
+                if b != u32::MAX && lines[b as usize].covered_length() > 0.0 {
                     deeper = deeper.max(lines[b as usize].depth);
                 }
             }
