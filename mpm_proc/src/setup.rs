@@ -99,7 +99,7 @@ pub fn build(scene: &Scene) -> Result<MpmSetup, SetupError> {
         apic: spec.transfer.is_affine(),
         linear_pressure: spec.pressure_reconstruction == schemas::scene::MpmPressureReconstruction::Linear,
         implicit_pressure: spec.pressure_scheme == schemas::scene::MpmPressureScheme::Implicit,
-        flip_share: [spec.flip_share_in_effect(), spec.liquid_flip_share_in_effect()],
+        flip_share: spec.flip_shares_per_step(),
         soil: skeleton,
         critical_soil: skeleton.without_dilatancy(),
         inertial_friction: inertial_friction(&spec, grain, rho_s),
@@ -360,16 +360,23 @@ fn describe(spec: &schemas::scene::MpmSpec, grid: &Grid, state: &MpmState, dt: f
     let (h, elements) = (grid.h, grid.elements);
     let (a, b) = spec.point_grid();
     let mut notes = vec![format!(
-        "grid {} x {} elements of {h} m ({:?} shape functions, {} transfer); {} solid and {} liquid points ({a} x {b} per element); dt = {dt:.3e} s (c_max = {c_max:.1} m/s, courant {})",
+        "grid {} x {} elements of {h} m ({:?} shape functions; transfer {}); {} solid and {} liquid points ({a} x {b} per element); dt = {dt:.3e} s (c_max = {c_max:.1} m/s, courant {})",
         elements[0],
         elements[1],
         spec.shape_functions,
         match spec.transfer {
-            schemas::scene::MpmTransfer::Aflip => format!(
-                "AFLIP, FLIP share {} solid, {} liquid",
-                spec.flip_share_in_effect(),
-                spec.liquid_flip_share_in_effect()
-            ),
+            schemas::scene::MpmTransfer::Aflip => {
+                let [solid, liquid] = spec.flip_shares_per_step();
+                let basis = match spec.flip_share_basis {
+                    schemas::scene::MpmFlipShareBasis::ReferenceStep => "over a courant-0.5 step",
+                    schemas::scene::MpmFlipShareBasis::Step => "over each step",
+                };
+                format!(
+                    "AFLIP, FLIP share {} solid, {} liquid {basis}: {solid:.4} and {liquid:.4} a step",
+                    spec.flip_share_in_effect(),
+                    spec.liquid_flip_share_in_effect()
+                )
+            }
             schemas::scene::MpmTransfer::Apic => "APIC".to_string(),
             schemas::scene::MpmTransfer::Flip => format!("FLIP, PIC share {} (order {})", spec.pic_fraction, spec.xpic_order),
         },

@@ -113,7 +113,9 @@ pub struct Params {
     /// Under APIC, the share β of the FLIP update blended in away from held
     /// nodes, v ← (1 − β) v_APIC + β v_FLIP, for the solid and the liquid
     /// points (`mpm.flip_share`, `mpm.liquid_flip_share`; AFLIP, Fei et al.
-    /// 2021).
+    /// 2021), kept over each step taken: the scene's shares raised to
+    /// courant / 0.5 under `mpm.flip_share_basis = "reference_step"`
+    /// (`MpmSpec::flip_shares_per_step`).
     pub flip_share: [f64; 2],
     /// Refit each element's pore pressures to a least-squares plane every
     /// step (`mpm.pressure_reconstruction = "linear"`).

@@ -599,6 +599,15 @@ pub struct MpmSpec {
     /// by 3 % (docs/mpm.md, "Which transfer"). In [0, 1).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub liquid_flip_share: Option<f64>,
+    /// What `flip_share` and `liquid_flip_share` are a share of:
+    /// `reference_step` (default), the share kept over one step at
+    /// courant 0.5 on this grid, so that a step of courant c keeps
+    /// β^(c/0.5) and the dissipation is a rate per second whatever the
+    /// step; `step`, the share kept over each step taken (before session
+    /// 47), whose dissipation per second grows as 1/Δt. The same at the
+    /// default courant 0.5 (docs/mpm.md, "AFLIP's share per second").
+    #[serde(default)]
+    pub flip_share_basis: MpmFlipShareBasis,
     /// `k0` (default): effective stresses σ'_h = K0 σ'_v with K0 = ν/(1−ν)
     /// and hydrostatic pore pressure, then the gravity phase; `zero`:
     /// stress-free start (gravity applied suddenly at t = 0, no gravity phase).
@@ -661,6 +670,21 @@ impl MpmSpec {
         match self.transfer {
             MpmTransfer::Aflip => self.liquid_flip_share.unwrap_or(0.0),
             _ => 0.0,
+        }
+    }
+
+    /// The FLIP shares (solid, liquid) kept over each step taken: the
+    /// shares in effect under `flip_share_basis = "step"`, raised to
+    /// `courant / FLIP_SHARE_REFERENCE_COURANT` under `"reference_step"`
+    /// (exactly the shares at the reference courant).
+    pub fn flip_shares_per_step(&self) -> [f64; 2] {
+        let shares = [self.flip_share_in_effect(), self.liquid_flip_share_in_effect()];
+        match self.flip_share_basis {
+            MpmFlipShareBasis::Step => shares,
+            MpmFlipShareBasis::ReferenceStep if self.courant == FLIP_SHARE_REFERENCE_COURANT => shares,
+            MpmFlipShareBasis::ReferenceStep => {
+                shares.map(|beta| beta.powf(self.courant / FLIP_SHARE_REFERENCE_COURANT))
+            }
         }
     }
 
@@ -862,6 +886,22 @@ impl MpmTransfer {
 /// columns' runouts by +0.3 % dry and −0.7 % saturated at 4 mm, +1.7 % and
 /// −2.6 % at 2 mm (docs/mpm.md, "Which transfer (session 18)").
 pub const DEFAULT_FLIP_SHARE: f64 = 0.9;
+
+/// The courant number at whose step `flip_share` is the share kept under
+/// `flip_share_basis = "reference_step"`: the default `courant`.
+pub const FLIP_SHARE_REFERENCE_COURANT: f64 = 0.5;
+
+/// What AFLIP's FLIP share is a share of (`MpmSpec::flip_share_basis`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MpmFlipShareBasis {
+    /// The share kept over one step at courant 0.5: a dissipation per
+    /// second, whatever the step.
+    #[default]
+    ReferenceStep,
+    /// The share kept over every step taken: a dissipation per step.
+    Step,
+}
 
 /// How the pore pressure is advanced (`MpmSpec::pressure_scheme`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]

@@ -200,6 +200,17 @@ fn valid_mpm_scene_loads_without_dem_or_lbm() {
     let both = load(&MPM, &["mpm.liquid_flip_share=0.9"]).unwrap().mpm();
     assert_eq!((both.flip_share_in_effect(), both.liquid_flip_share_in_effect()), (0.9, 0.9));
     assert!(load(&MPM, &["mpm.liquid_flip_share=1.0"]).unwrap_err().names_key("mpm.liquid_flip_share"));
+    // AFLIP's share is what is kept over a step at courant 0.5 (the
+    // default): the same at that courant, bit for bit; a quarter of the
+    // step keeps β^(1/4) a step, so that four steps keep β as one did
+    // (a dissipation per second); under "step" β every step.
+    assert_eq!(m.flip_shares_per_step(), [0.9, 0.0]);
+    let quarter = load(&MPM, &["mpm.courant=0.125", "mpm.liquid_flip_share=0.8"]).unwrap().mpm();
+    let [solid, liquid] = quarter.flip_shares_per_step();
+    assert!((solid.powi(4) - 0.9).abs() < 1e-15 && (liquid.powi(4) - 0.8).abs() < 1e-15, "{solid}, {liquid}");
+    let per_step = load(&MPM, &["mpm.courant=0.125", "mpm.flip_share_basis=\"step\""]).unwrap().mpm();
+    assert_eq!(per_step.flip_shares_per_step(), [0.9, 0.0]);
+    assert!(load(&MPM, &["mpm.flip_share_basis=\"second\""]).unwrap_err().names_key("mpm.flip_share_basis"));
     // The resolved scene keeps the method and reloads.
     let again = load(&s.to_toml(), &[]).unwrap();
     assert_eq!(again.method(), Method::Mpm);
