@@ -568,6 +568,22 @@ struct FilmLine {
     depth: f64,
 }
 
+/// One chunk of liquid points' share of a [`FilmLine`]'s `volume` and
+/// `covered`.
+#[derive(Debug, Clone, Copy)]
+struct FilmSum {
+    volume: f64,
+    covered: [f64; 2],
+}
+
+impl FilmSum {
+    const EMPTY: FilmSum = FilmSum { volume: 0.0, covered: [f64::INFINITY, f64::NEG_INFINITY] };
+}
+
+/// Liquid points per chunk of the film depth's pass
+/// (`Mpm::measure_film_depths`): fixed, so the sums' order is.
+const FILM_CHUNK: usize = 512;
+
 impl FilmLine {
     /// The length of the strip the counted points cover, m (0: none).
     fn covered_length(&self) -> f64 {
@@ -774,6 +790,9 @@ pub struct Mpm {
     /// index (`u32::MAX`: none).
     film_lines: Vec<FilmLine>,
     film_lookup: Vec<u32>,
+    /// `measure_film_depths`' per-chunk sums, line by line, chunk after
+    /// chunk.
+    film_partial: Vec<FilmSum>,
 }
 
 /// What the map's release test of unilateral walls
@@ -951,6 +970,7 @@ impl Mpm {
             sort_done: Vec::new(),
             film_lines: Vec::with_capacity(wall_count),
             film_lookup: vec![u32::MAX; 4 * grid.node_dims()[0].max(grid.node_dims()[1])],
+            film_partial: Vec::with_capacity(state.liquid.set.x.len().div_ceil(FILM_CHUNK) * wall_count),
             state,
         };
         if mpm.params.implicit_pressure {
@@ -2161,13 +2181,17 @@ impl Mpm {
     /// Postcondition: a film of depth d gives every line d, wherever its
     /// ends lie in the strips (`covered` treats the points over a strip
     /// as one run along the wall).
-    fn measure_film_depths(&self, lines: &mut [FilmLine]) {
+    /// The points are read in fixed chunks of [`FILM_CHUNK`] on the
+    /// threads at hand, each chunk's sums kept apart and merged in chunk
+    /// order: the depths do not depend on the thread count.
+    fn measure_film_depths(&mut self, lines: &mut [FilmLine]) {
         const GHOST: isize = crate::grid::GHOST as isize;
         if lines.is_empty() {
             return;
         }
         let (h, origin, dims) = (self.grid.h, self.grid.origin, self.grid.node_dims());
-        let stride = self.film_lookup.len() / 4;
+        let lookup = &self.film_lookup;
+        let stride = lookup.len() / 4;
         let set = &self.state.liquid.set;
         let rho = self.params.liquid_density;
         let mut sides = [false; 4];
@@ -2182,32 +2206,51 @@ impl Mpm {
             let half = set.half[tangent];
             (axis, tangent, half, 1.0 / (rho * 2.0 * half))
         });
-        for (x, &m) in set.x.iter().zip(&set.mass) {
-            for slot in (0..4).filter(|&k| sides[k]) {
-                let (axis, tangent, half, per_kg_m) = side[slot];
-                let domain = [x[tangent] - half, x[tangent] + half];
-                // A domain is at most an element wide: it spans the strip
-                // of its centre's nearest node and at most one beside it.
-                let at = (x[tangent] - origin[tangent]) * inv_h;
-                let nearest = (at + 0.5).floor();
-                let (reach_back, reach_on) = (at - half * inv_h < nearest - 0.5, at + half * inv_h > nearest + 0.5);
-                let nearest = nearest as isize + GHOST;
-                for along in nearest - isize::from(reach_back)..=nearest + isize::from(reach_on) {
-                    if !(0..dims[tangent] as isize).contains(&along) {
-                        continue;
+        let count = lines.len();
+        let chunks = set.x.len().div_ceil(FILM_CHUNK);
+        let partial = &mut self.film_partial;
+        partial.clear();
+        partial.resize(chunks * count, FilmSum::EMPTY);
+        let lines_read: &[FilmLine] = lines;
+        partial.par_chunks_mut(count).zip(set.x.par_chunks(FILM_CHUNK).zip(set.mass.par_chunks(FILM_CHUNK))).for_each(
+            |(sums, (xs, masses))| {
+                for (x, &m) in xs.iter().zip(masses) {
+                    for slot in (0..4).filter(|&k| sides[k]) {
+                        let (axis, tangent, half, per_kg_m) = side[slot];
+                        let domain = [x[tangent] - half, x[tangent] + half];
+                        // A domain is at most an element wide: it spans the
+                        // strip of its centre's nearest node and at most one
+                        // beside it.
+                        let at = (x[tangent] - origin[tangent]) * inv_h;
+                        let nearest = (at + 0.5).floor();
+                        let (reach_back, reach_on) =
+                            (at - half * inv_h < nearest - 0.5, at + half * inv_h > nearest + 0.5);
+                        let nearest = nearest as isize + GHOST;
+                        for along in nearest - isize::from(reach_back)..=nearest + isize::from(reach_on) {
+                            if !(0..dims[tangent] as isize).contains(&along) {
+                                continue;
+                            }
+                            let k = lookup[slot * stride + along as usize];
+                            if k == u32::MAX {
+                                continue;
+                            }
+                            let f = &lines_read[k as usize];
+                            let inside = [domain[0].max(f.strip[0]), domain[1].min(f.strip[1])];
+                            if inside[1] <= inside[0] || (x[axis] - f.wall) * f.line.inward as f64 > f.reach {
+                                continue;
+                            }
+                            let sum = &mut sums[k as usize];
+                            sum.volume += m * per_kg_m * (inside[1] - inside[0]);
+                            sum.covered = [sum.covered[0].min(inside[0]), sum.covered[1].max(inside[1])];
+                        }
                     }
-                    let k = self.film_lookup[slot * stride + along as usize];
-                    if k == u32::MAX {
-                        continue;
-                    }
-                    let f = &mut lines[k as usize];
-                    let inside = [domain[0].max(f.strip[0]), domain[1].min(f.strip[1])];
-                    if inside[1] <= inside[0] || (x[axis] - f.wall) * f.line.inward as f64 > f.reach {
-                        continue;
-                    }
-                    f.volume += m * per_kg_m * (inside[1] - inside[0]);
-                    f.covered = [f.covered[0].min(inside[0]), f.covered[1].max(inside[1])];
                 }
+            },
+        );
+        for sums in partial.chunks(count) {
+            for (f, sum) in lines.iter_mut().zip(sums) {
+                f.volume += sum.volume;
+                f.covered = [f.covered[0].min(sum.covered[0]), f.covered[1].max(sum.covered[1])];
             }
         }
         for f in lines.iter_mut() {
