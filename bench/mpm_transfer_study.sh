@@ -2,8 +2,9 @@
 # The MPM transfer study of docs/mpm.md ("Which transfer", "Convergence and
 # cost"): the H0 = 0.06 m dry and saturated lab columns under the default
 # AFLIP transfer (APIC + 0.9 of the FLIP update), with its remaining
-# dissipation halved (flip_share 0.95) and doubled (0.8, or courant 0.25:
-# twice the transfers per second), under plain APIC (the session 16-17
+# dissipation halved (flip_share 0.95) and doubled (0.8, or courant 0.25
+# with the share kept over each step, flip_share_basis = "step": twice the
+# transfers per second), under plain APIC (the session 16-17
 # default; its own dissipation halved by flip_share 0.5), under FLIP + XPIC
 # (the older default), on the rough floor and on mu = 10 and mu = 0
 # floors, with 3 and 6 points per element, on 2.86, 2 and 1.43 mm
@@ -30,7 +31,7 @@ h143=0.0014285714285714286
 declare -A sets=(
   [dry]="" [sat]=""
   [dry_beta05]="--set mpm.flip_share=0.5" [sat_beta05]="--set mpm.flip_share=0.5"
-  [dry_c025]="--set mpm.courant=0.25" [sat_c025]="--set mpm.courant=0.25"
+  [dry_c025]="--set mpm.courant=0.25 --set mpm.flip_share_basis=\"step\"" [sat_c025]="--set mpm.courant=0.25 --set mpm.flip_share_basis=\"step\""
   [dry_flip08]="--set mpm.transfer=\"flip\" --set mpm.courant=0.8"
   [sat_flip08]="--set mpm.transfer=\"flip\" --set mpm.courant=0.8"
   [dry_rough]="--set mpm.floor=\"rough\"" [sat_rough]="--set mpm.floor=\"rough\""

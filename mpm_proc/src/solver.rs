@@ -2181,6 +2181,7 @@ impl Mpm {
     /// Postcondition: a film of depth d gives every line d, wherever its
     /// ends lie in the strips (`covered` treats the points over a strip
     /// as one run along the wall).
+    ///
     /// The points are read in fixed chunks of [`FILM_CHUNK`] on the
     /// threads at hand, each chunk's sums kept apart and merged in chunk
     /// order: the depths do not depend on the thread count.

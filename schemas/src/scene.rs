@@ -338,7 +338,8 @@ pub struct MpmSpec {
     /// (undrained P-wave, liquid compression, dry P-wave; under
     /// `pressure_scheme = "implicit"` with soil, the dry P-wave alone, ~1.9×
     /// the step on the lab column: set 0.26 there to step as the explicit
-    /// scheme does). Default 0.5:
+    /// scheme does, with `flip_share_basis = "step"` to blend as it does at
+    /// its 0.5). Default 0.5:
     /// APIC's stable limit is lower than FLIP's; an elastic block settling
     /// under gravity held at 0.75 and blew up at 0.8 (FLIP and PIC held at
     /// 0.8). Under FLIP the saturated lab column's runout moved by 2.5 %
@@ -584,10 +585,11 @@ pub struct MpmSpec {
     /// v_p ← (1 − β) v_APIC + β v_FLIP, away from held nodes (points next to
     /// them, or to a frictional wall, take APIC's). APIC drops the part of
     /// the point velocities the grid cannot see each step (its numerical
-    /// dissipation); β keeps that share of it for one more step, so the
-    /// dissipation scales with 1 − β: 0.95 halves the default's, 0.8
-    /// doubles it. Default 0.9 (`DEFAULT_FLIP_SHARE`), in [0, 1) (1 would
-    /// be FLIP without a filter).
+    /// dissipation); β keeps that share of it over a step at courant 0.5
+    /// (β^(C/0.5) over a step at courant C, `flip_share_basis`), so the
+    /// dissipation scales with −ln β ≈ 1 − β: 0.95 halves the default's,
+    /// 0.8 doubles it. Default 0.9 (`DEFAULT_FLIP_SHARE`), in [0, 1) (1
+    /// would be FLIP without a filter).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub flip_share: Option<f64>,
     /// Under `transfer = "aflip"`: the same share for the liquid points.
@@ -605,7 +607,10 @@ pub struct MpmSpec {
     /// β^(c/0.5) and the dissipation is a rate per second whatever the
     /// step; `step`, the share kept over each step taken (before session
     /// 47), whose dissipation per second grows as 1/Δt. The same at the
-    /// default courant 0.5 (docs/mpm.md, "AFLIP's share per second").
+    /// default courant 0.5. The reference step 0.5 h / c_max depends on
+    /// c_max, so on the pressure scheme (the implicit scheme's is ~1.9×
+    /// the explicit one's on the lab column): to compare the schemes at
+    /// one step, set `"step"` (docs/mpm.md, "AFLIP's share per second").
     #[serde(default)]
     pub flip_share_basis: MpmFlipShareBasis,
     /// `k0` (default): effective stresses σ'_h = K0 σ'_v with K0 = ν/(1−ν)
@@ -728,7 +733,7 @@ fn default_mpm_points() -> u32 {
     12
 }
 fn default_mpm_courant() -> f64 {
-    0.5
+    DEFAULT_MPM_COURANT
 }
 fn default_mpm_young() -> f64 {
     1.0e7
@@ -887,9 +892,13 @@ impl MpmTransfer {
 /// −2.6 % at 2 mm (docs/mpm.md, "Which transfer (session 18)").
 pub const DEFAULT_FLIP_SHARE: f64 = 0.9;
 
+/// The default `mpm.courant`.
+pub const DEFAULT_MPM_COURANT: f64 = 0.5;
+
 /// The courant number at whose step `flip_share` is the share kept under
-/// `flip_share_basis = "reference_step"`: the default `courant`.
-pub const FLIP_SHARE_REFERENCE_COURANT: f64 = 0.5;
+/// `flip_share_basis = "reference_step"`: the default `courant`, so that
+/// the default scenes blend as before session 47, bit for bit.
+pub const FLIP_SHARE_REFERENCE_COURANT: f64 = DEFAULT_MPM_COURANT;
 
 /// What AFLIP's FLIP share is a share of (`MpmSpec::flip_share_basis`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -960,6 +969,11 @@ pub fn unused_flip_keys(m: &MpmSpec) -> Option<String> {
                 "mpm.{key} = {share} is unused under mpm.transfer = \"{name}\" (it blends FLIP into APIC under \"aflip\"; under \"flip\" the PIC share is mpm.pic_fraction)"
             ));
         }
+    }
+    if m.flip_share_basis != MpmFlipShareBasis::default() && m.transfer != MpmTransfer::Aflip {
+        notes.push(format!(
+            "mpm.flip_share_basis = \"step\" is unused under mpm.transfer = \"{name}\" (it says what AFLIP's mpm.flip_share is a share of)"
+        ));
     }
     (!notes.is_empty()).then(|| notes.join("; "))
 }

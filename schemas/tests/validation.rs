@@ -210,6 +210,9 @@ fn valid_mpm_scene_loads_without_dem_or_lbm() {
     assert!((solid.powi(4) - 0.9).abs() < 1e-15 && (liquid.powi(4) - 0.8).abs() < 1e-15, "{solid}, {liquid}");
     let per_step = load(&MPM, &["mpm.courant=0.125", "mpm.flip_share_basis=\"step\""]).unwrap().mpm();
     assert_eq!(per_step.flip_shares_per_step(), [0.9, 0.0]);
+    let apic_step = load(&MPM, &["mpm.transfer=\"apic\"", "mpm.flip_share_basis=\"step\""]).unwrap().mpm();
+    let note = schemas::scene::unused_flip_keys(&apic_step).expect("a note");
+    assert!(note.contains("mpm.flip_share_basis = \"step\" is unused"), "{note}");
     assert!(load(&MPM, &["mpm.flip_share_basis=\"second\""]).unwrap_err().names_key("mpm.flip_share_basis"));
     // The resolved scene keeps the method and reloads.
     let again = load(&s.to_toml(), &[]).unwrap();

@@ -666,10 +666,14 @@ fn mpm_lab_column_body_does_not_move_with_the_time_step() {
     // 75, 90 and 95 % shares -0.11 / 0.69 / 1.42 / 1.78 L0 and
     // -0.11 / 0.70 / 1.43 / 1.80, the pile edge 2.20 and 2.20; with β
     // kept over every step taken (`"step"`, before session 47) the half
-    // step's shares -0.12 / 0.65 / 1.36 / 1.73
-    // and pile edge 2.14 (0.04-0.06 L0 down: ten per cent dropped twice
-    // as often). The bar, 0.03 L0 (1.2 mm, 0.3 of an element), is 1.5x
-    // what is left and below what the per-step share moved. The 0.5 %
+    // step's shares -0.12 / 0.65 / 1.36 / 1.73 and pile edge 2.14 (the
+    // 75-95 % shares and the edge 0.04-0.06 L0 down, ten per cent dropped
+    // twice as often; the 50 % share 0.01, which this bar does not tell
+    // apart). The bar, 0.03 L0 (1.2 mm, 0.3 of an element), is 1.5x what
+    // is left and below what the per-step share moved; at courant 0.45
+    // to 0.525 and 0.24 to 0.26 the shares stay within 0.01 and the edge
+    // at 2.20 (at 0.12 to 0.13 the edge jumps 2.09 / 2.27 / 2.27 with the
+    // sheet beyond it, which is why the pair is 0.5 and 0.25). The 0.5 %
     // front and the water are not held: the sheet and the films ahead of
     // the pile still move with the step (2.643 -> 2.689, liquid front
     // 2.49 -> 2.63; docs/mpm.md, "AFLIP's share per second").
@@ -714,11 +718,14 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     // Bars: the shares 0.06 L0, 1.2x the most left and a fifth to a
     // third of the re-projection's 75 and 90 % moves; the free pair's
     // 0.5 % front 0.15 L0, a third of the re-projection's; its pile edge
-    // 0.10 L0, a third of the re-projection's: the edge of a 3 cm
-    // deposit on 5 mm elements is where it thins below one grain (half an
-    // element) and moves by about that with the step (0.06 free, 0.13
-    // hydrostatic, either sign); the lab column on 4 mm elements holds
-    // the pile edge to 0.03 L0 (`mpm_lab_column_body_does_not_move_with_
+    // 0.10 L0, a third of the re-projection's. That edge (where a 3 cm
+    // deposit on 5 mm elements thins below one grain, in bins of one
+    // grain, 0.0625 L0) moves forward with the shorter step under the
+    // share per second (+0.06 free, +0.13 hydrostatic) and back under the
+    // share per step (-0.01, -0.07): one to two bins, open (docs/mpm.md,
+    // open point 8); the bar still catches the re-projection's 0.30. The
+    // lab column on 4 mm elements holds its pile edge to 0.03 L0 between
+    // courant 0.5 and 0.25 (`mpm_lab_column_body_does_not_move_with_
     // the_time_step`). The hydrostatic pair's sheet and water are not
     // held: the film law moves them with the step about as much as free
     // slip does here (docs/mpm.md, "The film's ends"), and they are

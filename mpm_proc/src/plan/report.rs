@@ -5,7 +5,7 @@
 
 use schemas::plan::Plan;
 use schemas::scene::{
-    Face, InitialStress, MpmFloor, MpmLiquidWallShear, MpmPressureReconstruction, MpmPressureScheme,
+    Face, InitialStress, MpmFlipShareBasis, MpmFloor, MpmLiquidWallShear, MpmPressureReconstruction, MpmPressureScheme,
     MpmSurfaceElements, MpmTransfer, MpmWallContact, MpmWallFrictionReach, MpmWallTangentUpdate, PackingSpec, Scene,
 };
 
@@ -410,10 +410,18 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
         ),
     );
     match m.transfer {
-        MpmTransfer::Aflip => p.line("transfer", format!("AFLIP: APIC (affine part B D^-1 per point) with {} of the FLIP update blended in for the solid, {} for the liquid, MUSL; pic_fraction and xpic_order unused",
-            m.flip_share_in_effect(),
-            m.liquid_flip_share_in_effect()
-        )),
+        MpmTransfer::Aflip => {
+            let [solid, liquid] = m.flip_shares_per_step();
+            let basis = match m.flip_share_basis {
+                MpmFlipShareBasis::ReferenceStep => "kept over a courant-0.5 step",
+                MpmFlipShareBasis::Step => "kept over each step",
+            };
+            p.line("transfer", format!("AFLIP: APIC (affine part B D^-1 per point) with {} of the FLIP update blended in for the solid, {} for the liquid ({basis}: {solid:.4} and {liquid:.4} a step at courant {}), MUSL; pic_fraction and xpic_order unused",
+                m.flip_share_in_effect(),
+                m.liquid_flip_share_in_effect(),
+                m.courant
+            ))
+        }
         MpmTransfer::Apic => {
             p.line("transfer", "APIC (affine part B D^-1 per point, no filter), MUSL; pic_fraction and xpic_order unused")
         }
