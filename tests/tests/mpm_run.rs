@@ -669,8 +669,8 @@ fn mpm_lab_column_body_does_not_move_with_the_time_step() {
     // step's shares -0.12 / 0.65 / 1.36 / 1.73 and pile edge 2.14 (the
     // 75-95 % shares and the edge 0.04-0.06 L0 down, ten per cent dropped
     // twice as often; the 50 % share 0.01, which this bar does not tell
-    // apart). The bar, 0.03 L0 (1.2 mm, 0.3 of an element), is 1.5x what
-    // is left and below what the per-step share moved; at courant 0.45
+    // apart). The bar, 0.03 L0 (1.2 mm, 0.3 of an element), is twice what
+    // is left (0.015 on the 90 % share) and below what the per-step share moved; at courant 0.45
     // to 0.525 and 0.24 to 0.26 the shares stay within 0.01 and the edge
     // at 2.20 (at 0.12 to 0.13 the edge jumps 2.09 / 2.27 / 2.27 with the
     // sheet beyond it, which is why the pair is 0.5 and 0.25). The 0.5 %
@@ -715,7 +715,7 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     // 0.82. (AFLIP's share per step, before session 47: free pile edge
     // 0.700 -> 0.694, front 1.130 -> 1.167; hydrostatic front 1.501 ->
     // 1.681, liquid front 2.26 -> 2.44, pile edge 0.69 -> 0.62.)
-    // Bars: the shares 0.06 L0, 1.2x the most left and a fifth to a
+    // Bars: the shares 0.06 L0, 1.3x the most left (0.047) and a fifth to a
     // third of the re-projection's 75 and 90 % moves; the free pair's
     // 0.5 % front 0.15 L0, a third of the re-projection's; its pile edge
     // 0.10 L0, a third of the re-projection's. That edge (where a 3 cm
