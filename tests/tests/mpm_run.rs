@@ -721,8 +721,9 @@ fn mpm_saturated_deposit_on_a_frictional_floor_does_not_move_with_the_time_step(
     // 0.10 L0, a third of the re-projection's. That edge (where a 3 cm
     // deposit on 5 mm elements thins below one grain, in bins of one
     // grain, 0.0625 L0) moves forward with the shorter step under the
-    // share per second (+0.06 free, +0.13 hydrostatic) and back under the
-    // share per step (-0.01, -0.07): one to two bins, open (docs/mpm.md,
+    // share per second (+0.06 free, +0.13 hydrostatic; the free pair's
+    // neighbouring steps 0.70 / 0.70 / 0.70 and 0.78 / 0.76 / 0.76) and
+    // back under the share per step (-0.01, -0.08): open (docs/mpm.md,
     // open point 8); the bar still catches the re-projection's 0.30. The
     // lab column on 4 mm elements holds its pile edge to 0.03 L0 between
     // courant 0.5 and 0.25 (`mpm_lab_column_body_does_not_move_with_
