@@ -367,10 +367,7 @@ fn describe(spec: &schemas::scene::MpmSpec, grid: &Grid, state: &MpmState, dt: f
         match spec.transfer {
             schemas::scene::MpmTransfer::Aflip => {
                 let [solid, liquid] = spec.flip_shares_per_step();
-                let basis = match spec.flip_share_basis {
-                    schemas::scene::MpmFlipShareBasis::ReferenceStep => "over a courant-0.5 step",
-                    schemas::scene::MpmFlipShareBasis::Step => "over each step",
-                };
+                let basis = spec.flip_share_basis.kept_over();
                 format!(
                     "AFLIP, FLIP share {} solid, {} liquid {basis}: {solid:.4} and {liquid:.4} a step",
                     spec.flip_share_in_effect(),

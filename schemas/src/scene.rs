@@ -912,6 +912,16 @@ pub enum MpmFlipShareBasis {
     Step,
 }
 
+impl MpmFlipShareBasis {
+    /// What the share is kept over, for logs and plans.
+    pub fn kept_over(self) -> &'static str {
+        match self {
+            MpmFlipShareBasis::ReferenceStep => "kept over a courant-0.5 step",
+            MpmFlipShareBasis::Step => "kept over each step",
+        }
+    }
+}
+
 /// How the pore pressure is advanced (`MpmSpec::pressure_scheme`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

@@ -5,7 +5,7 @@
 
 use schemas::plan::Plan;
 use schemas::scene::{
-    Face, InitialStress, MpmFlipShareBasis, MpmFloor, MpmLiquidWallShear, MpmPressureReconstruction, MpmPressureScheme,
+    Face, InitialStress, MpmFloor, MpmLiquidWallShear, MpmPressureReconstruction, MpmPressureScheme,
     MpmSurfaceElements, MpmTransfer, MpmWallContact, MpmWallFrictionReach, MpmWallTangentUpdate, PackingSpec, Scene,
 };
 
@@ -412,10 +412,7 @@ fn plan_boundaries(scene: &Scene, p: &mut Plan) {
     match m.transfer {
         MpmTransfer::Aflip => {
             let [solid, liquid] = m.flip_shares_per_step();
-            let basis = match m.flip_share_basis {
-                MpmFlipShareBasis::ReferenceStep => "kept over a courant-0.5 step",
-                MpmFlipShareBasis::Step => "kept over each step",
-            };
+            let basis = m.flip_share_basis.kept_over();
             p.line("transfer", format!("AFLIP: APIC (affine part B D^-1 per point) with {} of the FLIP update blended in for the solid, {} for the liquid ({basis}: {solid:.4} and {liquid:.4} a step at courant {}), MUSL; pic_fraction and xpic_order unused",
                 m.flip_share_in_effect(),
                 m.liquid_flip_share_in_effect(),
